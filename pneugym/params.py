@@ -1,0 +1,372 @@
+"""Rig parameters: typed, validated dataclasses with the thesis rig as default.
+
+All values are SI, pressures absolute unless the name says ``gauge``. The groups mirror the
+``rig`` section of the measured-run format (``MEASUREMENT_FORMAT.md``) so that a measured run's
+JSON builds a plant directly (:meth:`RigParams.from_measurement`).
+
+Defaults marked *calibrated* are not given by the thesis; they were fitted once by
+``python -m pneugym.calibrate`` to the thesis's published figures (see README).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping
+
+#: Thesis Fig. 3.6: main-valve switching delay [s] against supply gauge pressure [Pa].
+THESIS_VALVE_DELAY = ((150_000.0, 0.215), (250_000.0, 0.185))
+
+
+def _check(obj: Any, name: str, ok: bool, what: str) -> None:
+    if not ok:
+        raise ValueError(
+            f"{type(obj).__name__}.{name} = {getattr(obj, name)!r} is invalid: must be {what}"
+        )
+
+
+def _finite(obj: Any) -> None:
+    """Every float field must be a finite number (no NaN, no inf)."""
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, bool) or v is None or isinstance(v, (str, tuple, Mapping)):
+            continue
+        if dataclasses.is_dataclass(v):
+            continue
+        if not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a finite number")
+
+
+def _positive(obj: Any, *names: str) -> None:
+    for n in names:
+        _check(obj, n, getattr(obj, n) > 0, "> 0")
+
+
+def _nonneg(obj: Any, *names: str) -> None:
+    for n in names:
+        _check(obj, n, getattr(obj, n) >= 0, ">= 0")
+
+
+@dataclass(frozen=True)
+class GasParams:
+    """Air and ambient (thesis: isothermal at 293 K, γ = 1.4, R = 287)."""
+
+    gas_constant_j_per_kg_k: float = 287.0
+    gamma: float = 1.4
+    ambient_temperature_k: float = 293.15
+    ambient_pressure_pa: float = 101_325.0
+    viscosity_pa_s: float = 1.81e-5  # kinematic 1.51e-5 m²/s at 1.2 kg/m³ (thesis)
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _positive(self, "gas_constant_j_per_kg_k", "ambient_temperature_k", "ambient_pressure_pa",
+                  "viscosity_pa_s")
+        _check(self, "gamma", 1.0 < self.gamma < 2.0, "in (1, 2)")
+
+    @property
+    def sound_speed_isothermal_m_s(self) -> float:
+        return math.sqrt(self.gas_constant_j_per_kg_k * self.ambient_temperature_k)
+
+
+@dataclass(frozen=True)
+class CylinderParams:
+    """Double-rod double-acting cylinder SMC C92SB-125-180W with end cushions (thesis 3.1, 3.4)."""
+
+    bore_m: float = 0.125
+    rod_m: float = 0.032
+    stroke_m: float = 0.18
+    dead_volume_m3: float = 5.0e-5  # calibrated: each chamber at its end of stroke, port included
+    port_area_m2: float = 1.9635e-5  # calibrated: driving port, line -> chamber
+    cushion_length_m: float = 0.015  # calibrated
+    cushion_factor_drive: float = 0.3  # calibrated: drive port area factor in the first zone
+    cushion_factor_exhaust: float = 0.08  # calibrated: exhaust area factor in the last zone
+    cushion_ramp_m: float = 0.002  # smooth transition of the cushion factor (numerics)
+    moving_mass_extra_kg: float = 1.0  # "other masses" Mo (thesis 6.1)
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _positive(self, "bore_m", "stroke_m", "dead_volume_m3", "port_area_m2",
+                  "cushion_factor_drive", "cushion_factor_exhaust", "cushion_ramp_m")
+        _nonneg(self, "rod_m", "cushion_length_m", "moving_mass_extra_kg")
+        _check(self, "rod_m", self.rod_m < self.bore_m, f"< bore_m ({self.bore_m})")
+        _check(self, "cushion_length_m", self.cushion_length_m < 0.5 * self.stroke_m,
+               f"< half the stroke ({0.5 * self.stroke_m})")
+        _check(self, "cushion_factor_drive", self.cushion_factor_drive <= 1.0, "in (0, 1]")
+        _check(self, "cushion_factor_exhaust", self.cushion_factor_exhaust <= 1.0, "in (0, 1]")
+
+    @property
+    def piston_area_m2(self) -> float:
+        """Annulus area [m²], the same on both sides of a double-rod cylinder."""
+        return math.pi / 4.0 * (self.bore_m**2 - self.rod_m**2)
+
+
+@dataclass(frozen=True)
+class LineParams:
+    """Supply line between the main valve and the driving port (PU tube, ID 5 mm; thesis 4.7).
+
+    ``model``: ``"fd"`` (1-D compressible finite differences, default) or ``"lumped"`` (the
+    thesis's lumped-volume line, volumes joined by orifices). ``tee_volumes`` are lumped volumes
+    ``(position_m, volume_m3)`` along the line (transducer tees), added to the cell at that place.
+    """
+
+    length_m: float = 1.0  # calibrated (not stated in the thesis)
+    diameter_m: float = 0.005
+    n_cells: int = 4
+    model: str = "fd"
+    tee_volumes: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _positive(self, "length_m", "diameter_m")
+        _check(self, "n_cells", isinstance(self.n_cells, int) and 1 <= self.n_cells <= 4096,
+               "an int in [1, 4096]")
+        _check(self, "model", self.model in ("fd", "lumped"), "'fd' or 'lumped'")
+        object.__setattr__(self, "tee_volumes", tuple((float(p), float(v)) for p, v in self.tee_volumes))
+        for i, (pos, vol) in enumerate(self.tee_volumes):
+            if not (math.isfinite(pos) and 0.0 <= pos <= self.length_m):
+                raise ValueError(f"LineParams.tee_volumes[{i}] position {pos!r} must be in [0, length_m]")
+            if not (math.isfinite(vol) and vol >= 0.0):
+                raise ValueError(f"LineParams.tee_volumes[{i}] volume {vol!r} must be >= 0")
+
+    @property
+    def area_m2(self) -> float:
+        return math.pi / 4.0 * self.diameter_m**2
+
+
+@dataclass(frozen=True)
+class ValveParams:
+    """Closed-centre 5/3 main valve and the exhaust path (thesis 3.3, 5.3).
+
+    ``delay_s=None`` interpolates the thesis's pressure-dependent delay (0.215 s at 1.5 bar,
+    0.185 s at 2.5 bar gauge, linear, clipped to [0.05, 0.4] s). The spool then opens or closes
+    linearly over ``ramp_s``. The exhaust path opens with the first opening and stays open.
+    ``flow_model``: ``"thesis"`` (eqs. 4.1-4.3) or ``"iso6358"`` (sonic conductance from the
+    same area, critical ratio ``iso_b``). Below a pressure drop of ``linear_ratio`` (relative) the
+    orifice flow is linear in Δp, so that the flow is smooth through Δp = 0.
+    """
+
+    area_m2: float = 1.9635e-5  # calibrated: supply path through the main valve
+    exhaust_area_m2: float = 1.9635e-5  # calibrated: exhaust chamber -> atmosphere, whole path
+    discharge_coefficient: float = 0.72
+    delay_s: float | None = None
+    ramp_s: float = 0.01
+    flow_model: str = "thesis"
+    iso_b: float = 0.528
+    linear_ratio: float = 0.02
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _positive(self, "area_m2", "exhaust_area_m2", "ramp_s")
+        _check(self, "discharge_coefficient", 0.0 < self.discharge_coefficient <= 1.0, "in (0, 1]")
+        if self.delay_s is not None:
+            _check(self, "delay_s", 0.0 <= self.delay_s <= 5.0, "None or in [0, 5] s")
+        _check(self, "flow_model", self.flow_model in ("thesis", "iso6358"), "'thesis' or 'iso6358'")
+        _check(self, "iso_b", 0.0 <= self.iso_b < 1.0, "in [0, 1)")
+        _check(self, "linear_ratio", 1e-4 <= self.linear_ratio <= 0.2, "in [1e-4, 0.2]")
+
+    def delay_for(self, supply_gauge_pa: float) -> float:
+        """Switching delay [s] at a supply gauge pressure [Pa]."""
+        if self.delay_s is not None:
+            return float(self.delay_s)
+        (p1, d1), (p2, d2) = THESIS_VALVE_DELAY
+        d = d1 + (d2 - d1) * (supply_gauge_pa - p1) / (p2 - p1)
+        return float(min(max(d, 0.05), 0.4))
+
+
+@dataclass(frozen=True)
+class FrictionParams:
+    """Piston friction (thesis 5.6): static breakaway, then ``coulomb + viscous * v``.
+
+    Defaults: Fs = 359 N and the linear fit of Table 5.1, C = 126 N, Kv = 1557 N s/m.
+    """
+
+    static_n: float = 359.0
+    coulomb_n: float = 126.0
+    viscous_n_s_per_m: float = 1557.0
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _nonneg(self, "static_n", "coulomb_n", "viscous_n_s_per_m")
+
+
+@dataclass(frozen=True)
+class EffectParams:
+    """Optional effects; every default is the null value that reproduces the nominal model exactly.
+
+    - ``leak_drive_area_m2``: effective leak area (Cd included) driving chamber -> atmosphere.
+    - ``leak_piston_area_m2``: effective leak area across the piston seal (drive <-> exhaust).
+    - ``heat_transfer_time_constant_s``: 0 = isothermal chambers (thesis); > 0 solves the energy
+      equation of each chamber with wall heat transfer ``hA = m c_v / tau`` to the wall at ambient.
+    - ``stribeck_force_n``, ``stribeck_velocity_m_s``: extra friction at low speed,
+      ``F_s * exp(-(v / v_s)^2)`` (velocity weakening); 0 N = off.
+    - ``sensor_lag_s``: first-order time constant of the pressure transducers (0 = ideal).
+    - ``dead_volume_m3``: extra volume at the driving port (adds to the chamber's dead volume).
+    """
+
+    leak_drive_area_m2: float = 0.0
+    leak_piston_area_m2: float = 0.0
+    heat_transfer_time_constant_s: float = 0.0
+    stribeck_force_n: float = 0.0
+    stribeck_velocity_m_s: float = 0.01
+    sensor_lag_s: float = 0.0
+    dead_volume_m3: float = 0.0
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _nonneg(self, "leak_drive_area_m2", "leak_piston_area_m2", "heat_transfer_time_constant_s",
+                "stribeck_force_n", "sensor_lag_s", "dead_volume_m3")
+        _positive(self, "stribeck_velocity_m_s")
+
+    @property
+    def active(self) -> tuple[str, ...]:
+        """Names of the effects switched on."""
+        on = []
+        if self.leak_drive_area_m2 > 0 or self.leak_piston_area_m2 > 0:
+            on.append("leakage")
+        if self.heat_transfer_time_constant_s > 0:
+            on.append("heat_transfer")
+        if self.stribeck_force_n > 0:
+            on.append("stribeck_friction")
+        if self.sensor_lag_s > 0:
+            on.append("sensor_lag")
+        if self.dead_volume_m3 > 0:
+            on.append("dead_volume")
+        return tuple(on)
+
+
+@dataclass(frozen=True)
+class SolverParams:
+    """Explicit time stepping (SSP-RK3). ``dt_s=None`` picks the substep automatically from the
+    CFL limit of the line and the stiffness of the smallest volume, times ``safety``."""
+
+    dt_s: float | None = None
+    safety: float = 0.9
+    min_dt_s: float = 1e-7
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        if self.dt_s is not None:
+            _check(self, "dt_s", self.dt_s > 0, "None or > 0")
+        _check(self, "safety", 0.0 < self.safety <= 1.0, "in (0, 1]")
+        _positive(self, "min_dt_s")
+
+
+@dataclass(frozen=True)
+class RigParams:
+    """The whole rig and operating point; the default is the thesis rig at 2.5 bar, 10 kg."""
+
+    supply_pressure_gauge_pa: float = 250_000.0
+    load_mass_kg: float = 10.0
+    gas: GasParams = field(default_factory=GasParams)
+    cylinder: CylinderParams = field(default_factory=CylinderParams)
+    line: LineParams = field(default_factory=LineParams)
+    valve: ValveParams = field(default_factory=ValveParams)
+    friction: FrictionParams = field(default_factory=FrictionParams)
+    effects: EffectParams = field(default_factory=EffectParams)
+    solver: SolverParams = field(default_factory=SolverParams)
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _check(self, "supply_pressure_gauge_pa", 0.0 < self.supply_pressure_gauge_pa <= 1.9e6,
+               "in (0, 1.9e6] Pa gauge (the supply must be above ambient)")
+        _nonneg(self, "load_mass_kg")
+
+    # -- derived ---------------------------------------------------------------------------
+    @property
+    def supply_pressure_pa(self) -> float:
+        """Absolute supply pressure [Pa]."""
+        return self.supply_pressure_gauge_pa + self.gas.ambient_pressure_pa
+
+    @property
+    def moving_mass_kg(self) -> float:
+        return self.load_mass_kg + self.cylinder.moving_mass_extra_kg
+
+    @property
+    def valve_delay_s(self) -> float:
+        return self.valve.delay_for(self.supply_pressure_gauge_pa)
+
+    # -- construction helpers --------------------------------------------------------------
+    def with_(self, **changes: Any) -> "RigParams":
+        """Copy with changes; nested groups take dicts, e.g. ``with_(friction={"static_n": 300})``."""
+        kw: dict[str, Any] = {}
+        for k, v in changes.items():
+            cur = getattr(self, k) if hasattr(self, k) else None
+            if cur is None and k not in {f.name for f in fields(self)}:
+                raise ValueError(f"RigParams has no field {k!r}")
+            if dataclasses.is_dataclass(cur) and isinstance(v, Mapping):
+                kw[k] = replace(cur, **dict(v))
+            else:
+                kw[k] = v
+        return replace(self, **kw)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "RigParams":
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError``."""
+        base = cls()
+        return base.with_(**{k: (dict(v) if isinstance(v, Mapping) else v) for k, v in d.items()})
+
+    @classmethod
+    def from_measurement(cls, meta: Mapping[str, Any], base: "RigParams | None" = None) -> "RigParams":
+        """Rig from a measured run's JSON (``pneugym-measurement/1``); missing keys keep ``base``."""
+        base = base or cls()
+        rig = dict(meta.get("rig") or {})
+        fr = dict(rig.pop("friction", {}) or {})
+        m = {
+            "bore_m": ("cylinder", "bore_m"), "rod_m": ("cylinder", "rod_m"),
+            "stroke_m": ("cylinder", "stroke_m"), "dead_volume_m3": ("cylinder", "dead_volume_m3"),
+            "port_area_m2": ("cylinder", "port_area_m2"),
+            "cushion_length_m": ("cylinder", "cushion_length_m"),
+            "cushion_factor_drive": ("cylinder", "cushion_factor_drive"),
+            "cushion_factor_exhaust": ("cylinder", "cushion_factor_exhaust"),
+            "moving_mass_extra_kg": ("cylinder", "moving_mass_extra_kg"),
+            "line_length_m": ("line", "length_m"), "line_diameter_m": ("line", "diameter_m"),
+            "valve_area_m2": ("valve", "area_m2"), "exhaust_area_m2": ("valve", "exhaust_area_m2"),
+            "discharge_coefficient": ("valve", "discharge_coefficient"),
+            "valve_delay_s": ("valve", "delay_s"),
+        }
+        groups: dict[str, dict[str, Any]] = {}
+        for key, value in rig.items():
+            if key in m:
+                g, name = m[key]
+                groups.setdefault(g, {})[name] = value
+        fmap = {"static_n": "static_n", "coulomb_n": "coulomb_n", "viscous_n_s_per_m": "viscous_n_s_per_m"}
+        for key, value in fr.items():
+            if key in fmap:
+                groups.setdefault("friction", {})[fmap[key]] = value
+        top: dict[str, Any] = {}
+        if "supply_pressure_gauge_pa" in meta:
+            top["supply_pressure_gauge_pa"] = float(meta["supply_pressure_gauge_pa"])
+        if "load_mass_kg" in meta:
+            top["load_mass_kg"] = float(meta["load_mass_kg"])
+        gas = {}
+        if "ambient_pressure_pa" in meta:
+            gas["ambient_pressure_pa"] = float(meta["ambient_pressure_pa"])
+        if "ambient_temperature_k" in meta:
+            gas["ambient_temperature_k"] = float(meta["ambient_temperature_k"])
+        if gas:
+            groups["gas"] = gas
+        return base.with_(**top, **groups)
+
+    def to_measurement_rig(self) -> dict[str, Any]:
+        """The ``rig`` section of the measured-run format for these parameters."""
+        c, ln, v, f = self.cylinder, self.line, self.valve, self.friction
+        return {
+            "bore_m": c.bore_m, "rod_m": c.rod_m, "stroke_m": c.stroke_m,
+            "dead_volume_m3": c.dead_volume_m3, "line_length_m": ln.length_m,
+            "line_diameter_m": ln.diameter_m, "valve_area_m2": v.area_m2,
+            "port_area_m2": c.port_area_m2, "exhaust_area_m2": v.exhaust_area_m2,
+            "cushion_length_m": c.cushion_length_m, "cushion_factor_drive": c.cushion_factor_drive,
+            "cushion_factor_exhaust": c.cushion_factor_exhaust,
+            "discharge_coefficient": v.discharge_coefficient, "valve_delay_s": self.valve_delay_s,
+            "moving_mass_extra_kg": c.moving_mass_extra_kg,
+            "friction": {"static_n": f.static_n, "coulomb_n": f.coulomb_n,
+                         "viscous_n_s_per_m": f.viscous_n_s_per_m},
+        }
+
+
+def thesis_rig(supply_bar_gauge: float = 2.5, **changes: Any) -> RigParams:
+    """The thesis rig at 1.5 or 2.5 bar (gauge) supply with 10 kg payload."""
+    return RigParams(supply_pressure_gauge_pa=supply_bar_gauge * 1e5).with_(**changes)

@@ -1,0 +1,51 @@
+"""Double-acting cylinder: chamber volumes, end cushions, friction, chamber energy equation.
+
+Thesis 3.4, 5.6, 6.1-6.2: ``(M + Mo) dv/dt = (p_drive - p_exhaust) A_p - F_f``; the piston stays
+stuck while ``|F| <= Fs`` (Karnopp), then ``F_f = sign(v) (C + Kv |v|)`` plus the optional
+Stribeck term. The stick/slip and end-stop logic is in :mod:`pneugym.physics.system`.
+"""
+import math
+
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def cushion_factor(dist, length, factor, ramp):
+    """Orifice-area factor at ``dist`` [m] from the cushioned end: ``factor`` inside the zone,
+    1 outside, joined by a smoothstep of width ``ramp`` [m] centred on the zone's edge."""
+    if length <= 0.0 or factor >= 1.0:
+        return 1.0
+    s = (dist - (length - 0.5 * ramp)) / ramp
+    if s <= 0.0:
+        return factor
+    if s >= 1.0:
+        return 1.0
+    s = s * s * (3.0 - 2.0 * s)
+    return factor + (1.0 - factor) * s
+
+
+@njit(cache=True, inline="always")
+def friction_force(v, f_drive, fc, kv, fstr, vstr):
+    """Sliding friction [N] opposing ``v`` [m/s]; at ``v == 0`` it opposes the drive ``f_drive``."""
+    sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (1.0 if f_drive >= 0.0 else -1.0))
+    av = abs(v)
+    f = fc + kv * av
+    if fstr > 0.0:
+        z = av / vstr
+        f += fstr * math.exp(-z * z)
+    return sgn * f
+
+
+@njit(cache=True, inline="always")
+def enthalpy_flow(mdot_in, T_src, T, cp, cv, R):
+    """Energy-equation term ``m c_v dT/dt`` [W] of a signed inflow ``mdot_in`` [kg/s]."""
+    if mdot_in >= 0.0:
+        return mdot_in * (cp * T_src - cv * T)
+    return mdot_in * R * T
+
+
+@njit(cache=True, inline="always")
+def chamber_dT(m, T, p, dVdt, heat_in, cv, T_wall, tau):
+    """dT/dt [K/s] of a chamber: flows (``heat_in`` from :func:`enthalpy_flow`), work, wall heat
+    transfer with time constant ``tau`` [s] (``hA = m c_v / tau``)."""
+    return (heat_in - p * dVdt) / (m * cv) + (T_wall - T) / tau

@@ -1,0 +1,97 @@
+"""Supply line: 1-D isothermal compressible flow on a staggered grid (thesis eqs. 2.86-2.89, 4.28-4.31).
+
+Cells hold air mass ``m_i`` (pressure ``p_i = m_i R T / V_i``); faces hold mass flow ``q_j``
+[kg/s]. Continuity ``dm_i/dt = q_i - q_{i+1}``; momentum at an interior face (flux form)::
+
+    dq/dt = A (p_L - p_R)/dx - (F_R - F_L)/dx + A (τ_R - τ_L)/dx - f q|q| / (2 d ρ A)
+
+with ``F = q_c² / (ρ A)`` the momentum flux at cell centres (``q_c`` = mean of the cell's faces),
+``τ = (4/3) μ du/dx`` the normal viscous stress of the thesis, and the wall friction factor ``f``
+laminar (64/Re) below Re 2300, Blasius (0.3164 Re^-0.25) above 4000, linear in between.
+Central differences throughout: 2nd order in space; the time integrator (SSP-RK3) is 3rd order.
+The boundary faces (valve, port) carry orifice flows that the caller computes.
+
+The lumped option (thesis Appendix 2) joins the same cells by orifices of the tube's area.
+"""
+import math
+
+from numba import njit
+
+from .orifice import mass_flow
+
+
+@njit(cache=True, inline="always")
+def friction_factor(re):
+    """Darcy friction factor of a smooth tube at Reynolds number ``re`` (>= 0)."""
+    if re < 1e-12:
+        return 0.0
+    if re <= 2300.0:
+        return 64.0 / re
+    fb = 0.3164 / math.sqrt(math.sqrt(re))
+    if re >= 4000.0:
+        return fb
+    w = (re - 2300.0) / 1700.0
+    f4000 = 0.3164 / math.sqrt(math.sqrt(4000.0))
+    return (1.0 - w) * (64.0 / 2300.0) + w * f4000
+
+
+@njit(cache=True, inline="always")
+def wall_friction(q, inv_rho, A, d, mu):
+    """Wall-friction term of the face momentum equation [kg/s²] (sign opposes ``q``);
+    ``inv_rho`` is the specific volume [m³/kg] at the face."""
+    aq = abs(q)
+    re = aq * d / (A * mu)
+    if re <= 2300.0:  # laminar in closed form: 32 μ q / (ρ d²)
+        return 32.0 * mu * q * inv_rho / (d * d)
+    return friction_factor(re) * q * aq * inv_rho / (2.0 * d * A)
+
+
+@njit(cache=True)
+def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, dm, dq, n):
+    """Right-hand side of the FD line.
+
+    ``p``: cell pressures [Pa]; ``RT`` [J/kg] (isothermal line, 1/ρ = RT/p); ``q``: interior face flows ``q[0..n-2]`` (face between cell j and j+1); ``q_in``/``q_out``:
+    boundary flows into cell 0 and out of cell n-1 [kg/s]. Writes ``dm`` (n) and ``dq`` (n-1).
+    """
+    for i in range(n):  # continuity
+        qa = q_in if i == 0 else q[i - 1]
+        qb = q_out if i == n - 1 else q[i]
+        dm[i] = qa - qb
+    if n == 1:
+        return
+    inv_a = 1.0 / A
+    inv_dx = 1.0 / dx
+    c43 = (4.0 / 3.0) * mu * inv_a * inv_dx
+    # specific volume from the pressure (isothermal: 1/ρ = RT/p), cell-centre flux and stress
+    inv_rho_l = RT / p[0]
+    qa = q_in
+    qb = q[0]
+    qc = 0.5 * (qa + qb)
+    flux_l = qc * qc * inv_rho_l * inv_a
+    tau_l = c43 * (qb - qa) * inv_rho_l
+    for j in range(n - 1):
+        i = j + 1
+        qa = q[j]
+        qb = q_out if i == n - 1 else q[i]
+        inv_rho_r = RT / p[i]
+        qc = 0.5 * (qa + qb)
+        flux_r = qc * qc * inv_rho_r * inv_a
+        tau_r = c43 * (qb - qa) * inv_rho_r
+        dq[j] = (A * (p[j] - p[i]) - (flux_r - flux_l) + A * (tau_r - tau_l)) * inv_dx \
+            - wall_friction(qa, 0.5 * (inv_rho_l + inv_rho_r), A, d, mu)
+        flux_l = flux_r
+        tau_l = tau_r
+        inv_rho_l = inv_rho_r
+
+
+@njit(cache=True)
+def lumped_rhs(p, q_in, q_out, cda, sqrt_T, oc, dm, n):
+    """Right-hand side of the lumped line: cells joined by orifices of effective area ``cda``."""
+    qa = q_in
+    for i in range(n):
+        if i == n - 1:
+            qb = q_out
+        else:
+            qb = mass_flow(p[i], p[i + 1], cda, sqrt_T, sqrt_T, oc)
+        dm[i] = qa - qb
+        qa = qb

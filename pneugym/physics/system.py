@@ -1,0 +1,402 @@
+"""The whole plant as one set of jitted kernels: right-hand side, SSP-RK3 substep with the
+stick-slip / end-stop / valve events, control-level advance and a batched ``prange`` advance.
+
+Array layouts: :mod:`pneugym.physics.layout`. Everything is SI with absolute pressures.
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .cylinder import chamber_dT, cushion_factor, enthalpy_flow, friction_force
+from .energy import potential_energy
+from .layout import (
+    D_CMD, D_MODE, D_MOVED, D_NQ, D_Q0, D_S, D_STATUS, D_STICKS, D_T, D_T_ARRIVE, D_T_CLOSED,
+    D_T_EXH, D_T_S, D_TARGET, MODE_END, MODE_MOVING, MODE_START, MODE_STUCK, NEVER, NP, NR, NY,
+    P_AP, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT, P_CDA_VALVE,
+    P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DELAY, P_DT, P_DX, P_FC, P_FLOW_MODEL,
+    P_FS, P_GAMMA, P_OC, P_SQRT_T, P_ISO_B, P_KV, P_LAG, P_LIN, P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MASS,
+    P_MU, P_NCELLS, P_PA, P_PS, P_R, P_RAMP, P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH,
+    P_V0D, P_V0E, QCAP, R_CMD, R_MDOT, R_MIN, R_PD, R_PE, R_PPORT, R_PVALVE, R_S, R_SD, R_SE,
+    R_SE_P, R_T, R_TD, R_TE, R_V, R_X, STATUS_NONFINITE, STATUS_NONPOSITIVE, STATUS_OK, Y_MD,
+    Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
+)
+from .line import fd_rhs, lumped_rhs
+from .orifice import NOC, mass_flow
+
+
+# --------------------------------------------------------------------------------------------
+# valve
+# --------------------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _ramp(s0, t0, target, tau, ramp):
+    """Spool opening at ``tau`` moving from ``s0`` at ``t0`` towards ``target`` at 1/ramp per s."""
+    ds = (tau - t0) / ramp
+    if target > s0:
+        return min(target, s0 + ds)
+    if target < s0:
+        return max(target, s0 - ds)
+    return s0
+
+
+@njit(cache=True)
+def valve_opening(d, P, tau):
+    """Main-valve opening [0, 1] and exhaust-path opening at time ``tau`` (>= d[D_T]).
+
+    Exact for the ramp in force and the next queued command (at most one per substep)."""
+    ramp = P[P_RAMP]
+    s0, t0, tg = d[D_S], d[D_T_S], d[D_TARGET]
+    t_exh = d[D_T_EXH]
+    if d[D_NQ] > 0 and tau > d[D_Q0]:
+        te = d[D_Q0]
+        s0 = _ramp(s0, t0, tg, te, ramp)
+        t0, tg = te, d[D_Q0 + 1]
+        if tg > 0.5 and t_exh >= NEVER:
+            t_exh = te
+    s = _ramp(s0, t0, tg, tau, ramp)
+    se = 0.0
+    if tau > t_exh:
+        se = min(1.0, (tau - t_exh) / ramp)
+    return s, se
+
+
+@njit(cache=True)
+def command(d, P, value):
+    """Give the valve command ``value`` (1 = supply connected, 0 = cut off) at the current time.
+    It takes effect after the valve delay ``P[P_DELAY]``."""
+    v = 1.0 if value > 0.5 else 0.0
+    if v == d[D_CMD]:
+        return
+    d[D_CMD] = v
+    nq = int(d[D_NQ])
+    if nq >= QCAP:  # drop the oldest pending change: keep the newest intent
+        for k in range(nq - 1):
+            d[D_Q0 + 2 * k] = d[D_Q0 + 2 * k + 2]
+            d[D_Q0 + 2 * k + 1] = d[D_Q0 + 2 * k + 3]
+        nq -= 1
+    d[D_Q0 + 2 * nq] = d[D_T] + P[P_DELAY]
+    d[D_Q0 + 2 * nq + 1] = v
+    d[D_NQ] = nq + 1
+
+
+@njit(cache=True)
+def _pop_due_commands(d, P, t):
+    """Make queued commands whose effective time is <= t the ramp in force."""
+    while d[D_NQ] > 0 and d[D_Q0] <= t:
+        te, tg = d[D_Q0], d[D_Q0 + 1]
+        d[D_S] = _ramp(d[D_S], d[D_T_S], d[D_TARGET], te, P[P_RAMP])
+        d[D_T_S] = te
+        d[D_TARGET] = tg
+        if tg > 0.5 and d[D_T_EXH] >= NEVER:
+            d[D_T_EXH] = te
+        nq = int(d[D_NQ])
+        for k in range(nq - 1):
+            d[D_Q0 + 2 * k] = d[D_Q0 + 2 * k + 2]
+            d[D_Q0 + 2 * k + 1] = d[D_Q0 + 2 * k + 3]
+        d[D_NQ] = nq - 1
+
+
+# --------------------------------------------------------------------------------------------
+# pressures and right-hand side
+# --------------------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def chamber_pressures(y, P, b):
+    """Driving and exhaust chamber pressures [Pa] and volumes [m³] for state ``y``."""
+    x = min(max(y[b + Y_X], 0.0), P[P_STROKE])
+    vd = P[P_V0D] + P[P_AP] * x
+    ve = P[P_V0E] + P[P_AP] * (P[P_STROKE] - x)
+    R = P[P_R]
+    return y[b + Y_MD] * R * y[b + Y_TD] / vd, y[b + Y_ME] * R * y[b + Y_TE] / ve, vd, ve
+
+
+@njit(cache=True)
+def rhs(tau, y, P, d, mode, dy, p):
+    """dy/dt at time ``tau``; ``p`` (n) receives the line-cell pressures. Returns the supply flow."""
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    R, gam, T, pa = P[P_R], P[P_GAMMA], P[P_T], P[P_PA]
+    oc = P[P_OC:P_OC + NOC]
+    sT = P[P_SQRT_T]
+    RT = R * T
+    for i in range(n):
+        p[i] = y[i] * RT / P[NP + i]
+    pd, pe, vd, ve = chamber_pressures(y, P, b)
+    x, v = y[b + Y_X], y[b + Y_V]
+    Td, Te = y[b + Y_TD], y[b + Y_TE]
+    sTd = sT if Td == T else math.sqrt(Td)
+    sTe = sT if Te == T else math.sqrt(Te)
+    stroke = P[P_STROKE]
+    s, se = valve_opening(d, P, tau)
+
+    q_in = 0.0
+    if s > 0.0:
+        q_in = mass_flow(P[P_PS], p[0], s * P[P_CDA_VALVE], sT, sT, oc)
+    fd = cushion_factor(x, P[P_CUSH_LEN], P[P_CUSH_FD], P[P_CUSH_RAMP])
+    fe = cushion_factor(stroke - x, P[P_CUSH_LEN], P[P_CUSH_FE], P[P_CUSH_RAMP])
+    q_port = mass_flow(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, oc)
+    q_ex = 0.0
+    if se > 0.0:
+        q_ex = mass_flow(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, oc)
+    q_ld = mass_flow(pd, pa, P[P_CDA_LEAK_D], sTd, sT, oc)
+    q_lp = mass_flow(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, oc)
+
+    # line
+    if P[P_LINE_MODEL] == 0.0:
+        fd_rhs(y[n:b], q_in, q_port, p, RT, P[P_LINE_A], P[P_DX],
+               P[P_LINE_D], P[P_MU], dy[:n], dy[n:b], n)
+    else:
+        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, oc, dy[:n], n)
+        for j in range(n, b):
+            dy[j] = 0.0
+
+    # chambers
+    dy[b + Y_MD] = q_port - q_ld - q_lp
+    dy[b + Y_ME] = q_lp - q_ex
+    tau_th = P[P_TAU_TH]
+    if tau_th > 0.0:
+        cv = R / (gam - 1.0)
+        cp = cv + R
+        vmove = v if mode == MODE_MOVING else 0.0
+        hd = (enthalpy_flow(q_port, T, Td, cp, cv, R) + enthalpy_flow(-q_ld, T, Td, cp, cv, R)
+              + enthalpy_flow(-q_lp, Te, Td, cp, cv, R))
+        he = enthalpy_flow(q_lp, Td, Te, cp, cv, R) + enthalpy_flow(-q_ex, T, Te, cp, cv, R)
+        dy[b + Y_TD] = chamber_dT(y[b + Y_MD], Td, pd, P[P_AP] * vmove, hd, cv, T, tau_th)
+        dy[b + Y_TE] = chamber_dT(y[b + Y_ME], Te, pe, -P[P_AP] * vmove, he, cv, T, tau_th)
+    else:
+        dy[b + Y_TD] = 0.0
+        dy[b + Y_TE] = 0.0
+
+    # piston
+    if mode == MODE_MOVING:
+        f = (pd - pe) * P[P_AP]
+        ff = friction_force(v, f, P[P_FC], P[P_KV], P[P_STRIB_F], P[P_STRIB_V])
+        dy[b + Y_X] = v
+        dy[b + Y_V] = (f - ff) / P[P_MASS]
+    else:
+        dy[b + Y_X] = 0.0
+        dy[b + Y_V] = 0.0
+    dy[b + Y_SD] = 0.0  # sensors are filtered exactly at the end of each substep
+    dy[b + Y_SE] = 0.0
+    dy[b + Y_MIN] = q_in
+    dy[b + Y_MOUT] = q_ex + q_ld
+    return q_in
+
+
+# --------------------------------------------------------------------------------------------
+# one substep
+# --------------------------------------------------------------------------------------------
+@njit(cache=True)
+def substep(y, P, d, h, k, y1, y2, p):
+    """Advance by ``h`` [s] with SSP-RK3 (Shu-Osher), then apply the events: valve commands
+    coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code."""
+    t = d[D_T]
+    ny = y.shape[0]
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    mode = int(d[D_MODE])
+    v_old = y[b + Y_V]
+    x_old = y[b + Y_X]
+
+    rhs(t, y, P, d, mode, k, p)
+    for i in range(ny):
+        y1[i] = y[i] + h * k[i]
+    rhs(t + h, y1, P, d, mode, k, p)
+    for i in range(ny):
+        y2[i] = 0.75 * y[i] + 0.25 * (y1[i] + h * k[i])
+    rhs(t + 0.5 * h, y2, P, d, mode, k, p)
+    for i in range(ny):
+        y[i] = (y[i] + 2.0 * (y2[i] + h * k[i])) / 3.0
+
+    # valve: advance the ramp, record a completed closing, pop due commands
+    t_new = t + h
+    s_before = _ramp(d[D_S], d[D_T_S], d[D_TARGET], t, P[P_RAMP])
+    _pop_due_commands(d, P, t_new)
+    s_now = _ramp(d[D_S], d[D_T_S], d[D_TARGET], t_new, P[P_RAMP])
+    if s_now <= 0.0 and (s_before > 0.0 or d[D_S] > 0.0) and d[D_TARGET] == 0.0 \
+            and d[D_T_CLOSED] < d[D_T_S]:
+        d[D_T_CLOSED] = d[D_T_S] + d[D_S] * P[P_RAMP]
+    d[D_T] = t_new
+
+    # state check
+    for i in range(ny):
+        if not math.isfinite(y[i]):
+            d[D_STATUS] = STATUS_NONFINITE
+            return STATUS_NONFINITE
+    for i in range(n):
+        if y[i] <= 0.0:
+            d[D_STATUS] = STATUS_NONPOSITIVE
+            return STATUS_NONPOSITIVE
+    if y[b + Y_MD] <= 0.0 or y[b + Y_ME] <= 0.0 or y[b + Y_TD] <= 0.0 or y[b + Y_TE] <= 0.0:
+        d[D_STATUS] = STATUS_NONPOSITIVE
+        return STATUS_NONPOSITIVE
+
+    # piston events
+    stroke = P[P_STROKE]
+    fs = P[P_FS]
+    pd, pe, vd, ve = chamber_pressures(y, P, b)
+    f = (pd - pe) * P[P_AP]
+    x, v = y[b + Y_X], y[b + Y_V]
+    if mode == MODE_MOVING:
+        if x >= stroke:
+            if d[D_T_ARRIVE] < 0.0:
+                frac = (stroke - x_old) / (x - x_old) if x > x_old else 1.0
+                d[D_T_ARRIVE] = t + frac * h
+            y[b + Y_X] = stroke
+            y[b + Y_V] = 0.0
+            d[D_MODE] = MODE_END
+        elif x <= 0.0:
+            y[b + Y_X] = 0.0
+            y[b + Y_V] = 0.0
+            d[D_MODE] = MODE_START
+        elif v_old != 0.0 and v_old * v <= 0.0:
+            y[b + Y_V] = 0.0
+            if abs(f) <= fs:
+                d[D_MODE] = MODE_STUCK
+                d[D_STICKS] += 1.0
+    elif mode == MODE_STUCK:
+        if abs(f) > fs:
+            d[D_MODE] = MODE_MOVING
+    elif mode == MODE_END:
+        if f < -fs:
+            d[D_MODE] = MODE_MOVING
+    else:  # MODE_START
+        if f > fs:
+            d[D_MODE] = MODE_MOVING
+            d[D_MOVED] = 1.0
+
+    # sensors: first-order lag, integrated exactly for a pressure held over the substep
+    lag = P[P_LAG]
+    if lag > 0.0:
+        a = 1.0 - math.exp(-h / lag)
+        y[b + Y_SD] += a * (pd - y[b + Y_SD])
+        y[b + Y_SE] += a * (pe - y[b + Y_SE])
+    else:
+        y[b + Y_SD] = pd
+        y[b + Y_SE] = pe
+    return STATUS_OK
+
+
+# --------------------------------------------------------------------------------------------
+# drivers
+# --------------------------------------------------------------------------------------------
+@njit(cache=True)
+def record_row(y, P, d, out, q_in):
+    """Write the recorded channels (layout ``R_*``) of the current state into ``out``."""
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    RT = P[P_R] * P[P_T]
+    pd, pe, vd, ve = chamber_pressures(y, P, b)
+    s, se = valve_opening(d, P, d[D_T])
+    out[R_T] = d[D_T]
+    out[R_X] = y[b + Y_X]
+    out[R_V] = y[b + Y_V]
+    out[R_PD] = pd
+    out[R_PE] = pe
+    out[R_PPORT] = y[n - 1] * RT / P[NP + n - 1]
+    out[R_PVALVE] = y[0] * RT / P[NP]
+    out[R_S] = s
+    out[R_SE] = se
+    out[R_MIN] = y[b + Y_MIN]
+    out[R_TD] = y[b + Y_TD]
+    out[R_TE] = y[b + Y_TE]
+    out[R_SD] = y[b + Y_SD]
+    out[R_SE_P] = y[b + Y_SE]
+    out[R_CMD] = d[D_CMD]
+    out[R_MDOT] = q_in
+
+
+@njit(cache=True)
+def supply_flow(y, P, d):
+    """Mass flow from the supply into the line [kg/s] at the current state."""
+    n = int(P[P_NCELLS])
+    s, se = valve_opening(d, P, d[D_T])
+    if s <= 0.0:
+        return 0.0
+    p0 = y[0] * P[P_R] * P[P_T] / P[NP]
+    return mass_flow(P[P_PS], p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
+                     P[P_OC:P_OC + NOC])
+
+
+@njit(cache=True)
+def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
+    """Advance to time ``t_end`` [s] in substeps of at most ``P[P_DT]``.
+
+    If ``rec_dt > 0``, rows of ``rec`` (shape (m, NR)) are filled at times that are multiples of
+    ``rec_dt`` (substeps are shortened to land on them); recording stops when ``rec`` is full.
+    If ``stop_on_arrival``, returns as soon as the piston first reaches the extended end.
+    Returns ``(status, rows_written)``.
+    """
+    ny = y.shape[0]
+    n = int(P[P_NCELLS])
+    k = np.empty(ny)
+    y1 = np.empty(ny)
+    y2 = np.empty(ny)
+    p = np.empty(n)
+    dt = P[P_DT]
+    nrec = 0
+    mrec = rec.shape[0]
+    t_next = 0.0
+    if rec_dt > 0.0:
+        t_next = math.ceil(d[D_T] / rec_dt - 1e-9) * rec_dt
+    eps = 1e-12
+    while d[D_T] < t_end - eps:
+        t = d[D_T]
+        if rec_dt > 0.0 and nrec < mrec and t >= t_next - eps:
+            record_row(y, P, d, rec[nrec], supply_flow(y, P, d))
+            nrec += 1
+            t_next = (math.floor(t / rec_dt + 1e-9) + 1.0) * rec_dt
+        h = min(dt, t_end - t)
+        if rec_dt > 0.0 and nrec < mrec:
+            h = min(h, t_next - t)
+        st = substep(y, P, d, h, k, y1, y2, p)
+        if st != STATUS_OK:
+            return st, nrec
+        if stop_on_arrival and d[D_T_ARRIVE] >= 0.0:
+            break
+    if rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:
+        record_row(y, P, d, rec[nrec], supply_flow(y, P, d))
+        nrec += 1
+    return STATUS_OK, nrec
+
+
+@njit(cache=True, parallel=True)
+def advance_batch(Y, Ps, Ds, commands, duration, status):
+    """Give each plant ``i`` the command ``commands[i]`` and advance it by ``duration`` [s].
+
+    ``Y`` (B, ny), ``Ps`` (B, np), ``Ds`` (B, nd) as in :mod:`layout`; plants with a non-zero
+    ``status[i]`` are skipped. Plants run in parallel (numba ``prange``)."""
+    nb = Y.shape[0]
+    empty = np.empty((0, NR))
+    for i in prange(nb):
+        if status[i] != 0:
+            continue
+        command(Ds[i], Ps[i], commands[i])
+        st, _ = advance(Y[i], Ps[i], Ds[i], Ds[i, D_T] + duration, empty, 0.0, False)
+        status[i] = st
+
+
+@njit(cache=True)
+def driving_side_energy(y, P):
+    """Air potential energy [J] of the line cells and the driving chamber (thesis eq. 5.9)."""
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    RT = P[P_R] * P[P_T]
+    pa = P[P_PA]
+    e = 0.0
+    for i in range(n):
+        vol = P[NP + i]
+        e += potential_energy(y[i] * RT / vol, vol, pa)
+    pd, pe, vd, ve = chamber_pressures(y, P, b)
+    e += potential_energy(pd, vd, pa)
+    return e
+
+
+@njit(cache=True)
+def total_air_mass(y, P):
+    """Air mass in the line and both chambers [kg]."""
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    m = 0.0
+    for i in range(n):
+        m += y[i]
+    return m + y[b + Y_MD] + y[b + Y_ME]

@@ -1,0 +1,515 @@
+"""The plant: packs :class:`~pneugym.params.RigParams` into arrays once, picks a stable substep,
+owns the state and advances it through the jitted kernels of :mod:`pneugym.physics`.
+
+>>> from pneugym import Plant, thesis_rig
+>>> plant = Plant(thesis_rig(2.5))
+>>> traj = plant.run(t_end=2.0, schedule=[(0.0, 1)])      # conventional extension
+>>> round(plant.arrival_time_s, 2) > 0
+True
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .params import RigParams
+from .physics import layout as L
+from .physics import system as K
+from .physics.energy import flow_exergy, potential_energy
+from .physics.orifice import NOC, linear_conductance, orifice_constants
+
+RK3_REAL_LIMIT = 2.51  # SSP-RK3 stability bound on the negative real axis (h |λ|)
+RK3_IMAG_LIMIT = math.sqrt(3.0)  # ... and on the imaginary axis (h |ω|)
+
+
+class SimulationError(RuntimeError):
+    """The state went non-physical; the message names the time and the state."""
+
+
+# ------------------------------------------------------------------------------------------
+# packing
+# ------------------------------------------------------------------------------------------
+def cell_volumes(params: RigParams) -> np.ndarray:
+    """Volumes of the line cells [m³]: tube share plus any tee volume located in the cell."""
+    ln = params.line
+    n = ln.n_cells
+    vol = np.full(n, ln.area_m2 * ln.length_m / n)
+    for pos, v in ln.tee_volumes:
+        i = min(int(pos / ln.length_m * n), n - 1)
+        vol[i] += v
+    return vol
+
+
+def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
+    """Parameter array ``P`` (layout in :mod:`pneugym.physics.layout`)."""
+    g, c, ln, v, f, e = (params.gas, params.cylinder, params.line, params.valve, params.friction,
+                         params.effects)
+    P = np.zeros(L.NP + ln.n_cells)
+    cd = v.discharge_coefficient
+    P[L.P_R] = g.gas_constant_j_per_kg_k
+    P[L.P_GAMMA] = g.gamma
+    P[L.P_T] = g.ambient_temperature_k
+    P[L.P_PA] = g.ambient_pressure_pa
+    P[L.P_PS] = params.supply_pressure_pa
+    P[L.P_MU] = g.viscosity_pa_s
+    P[L.P_CDA_VALVE] = cd * v.area_m2
+    P[L.P_CDA_PORT] = cd * c.port_area_m2
+    P[L.P_CDA_EXH] = cd * v.exhaust_area_m2
+    P[L.P_CDA_LINE] = cd * ln.area_m2
+    P[L.P_FLOW_MODEL] = 0.0 if v.flow_model == "thesis" else 1.0
+    P[L.P_ISO_B] = v.iso_b
+    P[L.P_LIN] = v.linear_ratio
+    P[L.P_DELAY] = params.valve_delay_s
+    P[L.P_RAMP] = v.ramp_s
+    P[L.P_AP] = c.piston_area_m2
+    P[L.P_STROKE] = c.stroke_m
+    P[L.P_V0D] = c.dead_volume_m3 + e.dead_volume_m3
+    P[L.P_V0E] = c.dead_volume_m3
+    P[L.P_CUSH_LEN] = c.cushion_length_m
+    P[L.P_CUSH_FD] = c.cushion_factor_drive
+    P[L.P_CUSH_FE] = c.cushion_factor_exhaust
+    P[L.P_CUSH_RAMP] = c.cushion_ramp_m
+    P[L.P_MASS] = params.moving_mass_kg
+    P[L.P_FS] = f.static_n
+    P[L.P_FC] = f.coulomb_n
+    P[L.P_KV] = f.viscous_n_s_per_m
+    P[L.P_STRIB_F] = e.stribeck_force_n
+    P[L.P_STRIB_V] = e.stribeck_velocity_m_s
+    P[L.P_CDA_LEAK_D] = e.leak_drive_area_m2
+    P[L.P_CDA_LEAK_P] = e.leak_piston_area_m2
+    P[L.P_TAU_TH] = e.heat_transfer_time_constant_s
+    P[L.P_LAG] = e.sensor_lag_s
+    P[L.P_LINE_MODEL] = 0.0 if ln.model == "fd" else 1.0
+    P[L.P_NCELLS] = ln.n_cells
+    P[L.P_DX] = ln.length_m / ln.n_cells
+    P[L.P_LINE_A] = ln.area_m2
+    P[L.P_LINE_D] = ln.diameter_m
+    P[L.P_DT] = dt_s
+    P[L.P_SQRT_T] = math.sqrt(g.ambient_temperature_k)
+    P[L.P_OC:L.P_OC + NOC] = orifice_constants(g.gamma, g.gas_constant_j_per_kg_k,
+                                               P[L.P_FLOW_MODEL], v.iso_b, v.linear_ratio)
+    P[L.NP:] = cell_volumes(params)
+    return P
+
+
+def stability_limits(params: RigParams) -> dict[str, float]:
+    """Largest stable substep [s] for each fast process (before the safety factor).
+
+    - ``line CFL``: acoustic + convective speed over a cell (FD line only), with the flow speed
+      bounded by the valve's largest flow at ambient density (at most sonic);
+    - ``orifice <name>``: the stiffest orifice-volume pair (linearised orifice conductance);
+    - ``line friction``, ``piston air spring``, ``piston viscous``, ``heat transfer``.
+    """
+    g, c, ln, v, e = params.gas, params.cylinder, params.line, params.valve, params.effects
+    R, gam, T, pa, ps = (g.gas_constant_j_per_kg_k, g.gamma, g.ambient_temperature_k,
+                         g.ambient_pressure_pa, params.supply_pressure_pa)
+    oc = orifice_constants(gam, R, 0.0 if v.flow_model == "thesis" else 1.0, v.iso_b, v.linear_ratio)
+    vol = cell_volumes(params)
+    cd = v.discharge_coefficient
+    out: dict[str, float] = {}
+
+    def orifice(name: str, cda: float, va: float, vb: float) -> None:
+        if cda <= 0:
+            return
+        G = linear_conductance(ps, cda, T, oc)
+        lam = G * R * T * (1.0 / va + 1.0 / vb)
+        out[f"orifice {name}"] = RK3_REAL_LIMIT / lam
+
+    v0d = c.dead_volume_m3 + e.dead_volume_m3
+    orifice("valve -> line cell 0", cd * v.area_m2, vol[0], math.inf)
+    orifice("port: line cell -> driving chamber", cd * c.port_area_m2 * 1.0, vol[-1], v0d)
+    orifice("exhaust", cd * v.exhaust_area_m2, c.dead_volume_m3, math.inf)
+    orifice("leak drive", e.leak_drive_area_m2, v0d, math.inf)
+    orifice("leak piston", e.leak_piston_area_m2, v0d, c.dead_volume_m3)
+    if ln.model == "lumped" and ln.n_cells > 1:
+        orifice("between lumped line volumes", cd * ln.area_m2, vol.min(), vol.min())
+    if ln.model == "fd":
+        csound = math.sqrt(R * T)
+        rho_a = pa / (R * T)
+        umax = min(csound, cd * v.area_m2 * 0.0405 * ps / math.sqrt(T) / (rho_a * ln.area_m2))
+        dx = ln.length_m / ln.n_cells
+        # staggered central differences: |ω| <= 2 (c + |u|) / dx
+        out["line CFL"] = RK3_IMAG_LIMIT * dx / (2.0 * (csound + umax))
+        lam_f = 32.0 * g.viscosity_pa_s * R * T / (0.5 * pa * ln.diameter_m**2)
+        out["line friction"] = RK3_REAL_LIMIT / lam_f
+    M = params.moving_mass_kg
+    A = c.piston_area_m2
+    if M > 0:
+        k = A * A * ps * (1.0 / v0d + 1.0 / c.dead_volume_m3)
+        out["piston air spring"] = RK3_IMAG_LIMIT / math.sqrt(k / M)
+        if params.friction.viscous_n_s_per_m > 0:
+            out["piston viscous"] = RK3_REAL_LIMIT * M / params.friction.viscous_n_s_per_m
+    if e.heat_transfer_time_constant_s > 0:
+        out["heat transfer"] = RK3_REAL_LIMIT * e.heat_transfer_time_constant_s
+    return out
+
+
+def choose_dt(params: RigParams) -> tuple[float, str]:
+    """The substep [s] and the process that limits it; raises ``ValueError`` if unsteppable."""
+    lim = stability_limits(params)
+    name = min(lim, key=lim.get)
+    stable = lim[name] * params.solver.safety
+    s = params.solver
+    if s.dt_s is not None:
+        if s.dt_s > lim[name]:
+            raise ValueError(
+                f"SolverParams.dt_s = {s.dt_s:.3g} s is above the stability limit "
+                f"{lim[name]:.3g} s set by the {name}; use dt_s=None (automatic) or <= {stable:.3g} s")
+        return float(s.dt_s), "user"
+    if stable < s.min_dt_s:
+        raise ValueError(
+            f"this configuration cannot be stepped: the {name} limits the substep to {stable:.3g} s, "
+            f"below SolverParams.min_dt_s = {s.min_dt_s:.3g} s (too small a volume or too fine a "
+            f"line grid for its orifices); enlarge the volume, coarsen the line or lower min_dt_s")
+    return stable, name
+
+
+# ------------------------------------------------------------------------------------------
+# plant
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Trajectory:
+    """Recorded channels (``pneugym.physics.layout.RECORD_NAMES``) at uniform times."""
+
+    data: np.ndarray  # (samples, NR)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[:, L.RECORD_NAMES.index(name)]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return L.RECORD_NAMES
+
+    def __len__(self) -> int:
+        return self.data.shape[0]
+
+
+class Plant:
+    """One simulated rig. State layout: :mod:`pneugym.physics.layout`.
+
+    The episode starts at the extend command (``t = 0``) from the thesis's initial state (piston
+    retracted, driving side at ambient, exhaust chamber at supply pressure). Commands
+    (1 = supply connected, 0 = cut off) take effect after the valve delay.
+    """
+
+    def __init__(self, params: RigParams | None = None):
+        self.params = params or RigParams()
+        self.dt_s, self.dt_limited_by = choose_dt(self.params)
+        self.P = pack(self.params, self.dt_s)
+        self.n_cells = self.params.line.n_cells
+        self._b = 2 * self.n_cells - 1
+        self.y = np.zeros(self._b + L.NY)
+        self.d = np.zeros(L.ND)
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+    def initial_state(self, p_line_pa: Sequence[float] | float | None = None,
+                      p_drive_pa: float | None = None, p_exhaust_pa: float | None = None,
+                      position_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """State arrays ``(y, d)`` at rest; defaults are the thesis's start of an extension."""
+        prm = self.params
+        R, T = prm.gas.gas_constant_j_per_kg_k, prm.gas.ambient_temperature_k
+        pa, ps = prm.gas.ambient_pressure_pa, prm.supply_pressure_pa
+        n, b = self.n_cells, self._b
+        vol = self.P[L.NP:]
+        pl = np.broadcast_to(np.asarray(pa if p_line_pa is None else p_line_pa, float), (n,))
+        y = np.zeros(b + L.NY)
+        y[:n] = pl * vol / (R * T)
+        pd = pa if p_drive_pa is None else p_drive_pa
+        pe = ps if p_exhaust_pa is None else p_exhaust_pa
+        if not 0.0 <= position_m <= prm.cylinder.stroke_m:
+            raise ValueError(f"position_m = {position_m} is outside [0, stroke]")
+        A = prm.cylinder.piston_area_m2
+        vd = self.P[L.P_V0D] + A * position_m
+        ve = self.P[L.P_V0E] + A * (prm.cylinder.stroke_m - position_m)
+        for name, val in (("p_drive_pa", pd), ("p_exhaust_pa", pe)):
+            if not (math.isfinite(val) and val > 0):
+                raise ValueError(f"{name} = {val} must be a positive pressure [Pa]")
+        y[b + L.Y_MD] = pd * vd / (R * T)
+        y[b + L.Y_ME] = pe * ve / (R * T)
+        y[b + L.Y_TD] = y[b + L.Y_TE] = T
+        y[b + L.Y_X] = position_m
+        y[b + L.Y_SD], y[b + L.Y_SE] = pd, pe
+        d = np.zeros(L.ND)
+        d[L.D_T_EXH] = L.NEVER
+        d[L.D_T_ARRIVE] = -1.0
+        d[L.D_T_CLOSED] = -1.0
+        d[L.D_T_S] = 0.0
+        d[L.D_MODE] = L.MODE_START if position_m == 0.0 else (
+            L.MODE_END if position_m >= prm.cylinder.stroke_m else L.MODE_STUCK)
+        return y, d
+
+    def reset(self, **initial) -> "Plant":
+        """Back to the start of an extension (keywords as in :meth:`initial_state`)."""
+        self.y, self.d = self.initial_state(**initial)
+        self._m0 = self.total_air_mass_kg
+        return self
+
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
+        """A copy of the state, for :meth:`restore` (e.g. to search over cut-off times)."""
+        return self.y.copy(), self.d.copy()
+
+    def restore(self, snap: tuple[np.ndarray, np.ndarray]) -> None:
+        self.y[:], self.d[:] = snap[0], snap[1]
+
+    # -- control -------------------------------------------------------------------------
+    def command(self, value: int) -> None:
+        """Valve command (1 = supply connected, 0 = cut off), effective after the valve delay."""
+        K.command(self.d, self.P, float(value))
+
+    def advance(self, duration_s: float, command: int | None = None,
+                stop_on_arrival: bool = False) -> None:
+        """Give ``command`` (if not None) and advance by ``duration_s`` [s] (control-level API)."""
+        if command is not None:
+            self.command(command)
+        st, _ = K.advance(self.y, self.P, self.d, self.time_s + duration_s, _NOREC, 0.0,
+                          stop_on_arrival)
+        self._check(st)
+
+    def run(self, t_end: float, schedule: Iterable[tuple[float, int]] = ((0.0, 1),),
+            record_dt: float = 1e-3, cut_on_arrival: bool = False) -> Trajectory:
+        """Run to ``t_end`` [s] with commands ``(time_s, value)``, recording every ``record_dt``.
+
+        ``cut_on_arrival`` commands a cut-off the moment the piston reaches the end of stroke
+        (the thesis's end-stroke cut-off). Continues from the current state."""
+        sched = sorted((float(t), int(v)) for t, v in schedule)
+        stops = sorted({t for t, _ in sched if t > self.time_s + 1e-12 and t < t_end} | {t_end})
+        nrow = int(math.floor((t_end - self.time_s) / record_dt + 1e-9)) + 3 + 2 * len(stops)
+        rec = np.zeros((nrow, L.NR))
+        nrec = 0
+        for t, v in sched:
+            if t <= self.time_s + 1e-12:
+                self.command(v)
+        for t_stop in stops:
+            while True:
+                stop = cut_on_arrival and self.arrival_time_s is None
+                st, nr = K.advance(self.y, self.P, self.d, t_stop, rec[nrec:], record_dt, stop)
+                nrec += nr
+                self._check(st)
+                if stop and self.arrival_time_s is not None:
+                    self.command(0)
+                    continue
+                break
+            for t, v in sched:
+                if abs(t - t_stop) <= 1e-12:
+                    self.command(v)
+        data = rec[:nrec]
+        if nrec > 1:  # a segment boundary on the recording grid is written twice
+            data = data[np.concatenate([[True], np.diff(data[:, 0]) > 1e-12])]
+        return Trajectory(data)
+
+    def _check(self, status: int) -> None:
+        if status == L.STATUS_OK:
+            return
+        what = {L.STATUS_NONFINITE: "a non-finite value (NaN/inf)",
+                L.STATUS_NONPOSITIVE: "a non-positive mass, pressure or temperature"}[status]
+        raise SimulationError(
+            f"simulation went non-physical at t = {self.time_s:.6f} s: {what}. State: "
+            f"x = {self.position_m:.6g} m, v = {self.velocity_m_s:.6g} m/s, "
+            f"p_drive = {self.p_drive_pa:.6g} Pa, p_exhaust = {self.p_exhaust_pa:.6g} Pa, "
+            f"line p = {np.array2string(self.line_pressures_pa, precision=5)} Pa, "
+            f"dt = {self.dt_s:.3g} s (limited by {self.dt_limited_by})")
+
+    # -- observables ---------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        return float(self.d[L.D_T])
+
+    @property
+    def position_m(self) -> float:
+        return float(self.y[self._b + L.Y_X])
+
+    @property
+    def velocity_m_s(self) -> float:
+        return float(self.y[self._b + L.Y_V])
+
+    @property
+    def p_drive_pa(self) -> float:
+        return float(K.chamber_pressures(self.y, self.P, self._b)[0])
+
+    @property
+    def p_exhaust_pa(self) -> float:
+        return float(K.chamber_pressures(self.y, self.P, self._b)[1])
+
+    @property
+    def sensor_pressures_pa(self) -> tuple[float, float]:
+        """Driving and exhaust port pressures as the (possibly lagged) transducers read them."""
+        return float(self.y[self._b + L.Y_SD]), float(self.y[self._b + L.Y_SE])
+
+    @property
+    def line_pressures_pa(self) -> np.ndarray:
+        R, T = self.P[L.P_R], self.P[L.P_T]
+        return self.y[:self.n_cells] * R * T / self.P[L.NP:]
+
+    @property
+    def valve_opening(self) -> tuple[float, float]:
+        """(main valve, exhaust path) openings in [0, 1]."""
+        s, se = K.valve_opening(self.d, self.P, self.time_s)
+        return float(s), float(se)
+
+    @property
+    def valve_command(self) -> int:
+        return int(self.d[L.D_CMD])
+
+    @property
+    def supply_cut(self) -> bool:
+        """True once a cut-off has been commanded after the extend command (the valve may still
+        be closing)."""
+        return self.valve_command == 0 and self._ever_opened
+
+    @property
+    def _ever_opened(self) -> bool:
+        nq = int(self.d[L.D_NQ])
+        return bool(self.d[L.D_T_EXH] < L.NEVER
+                    or any(self.d[L.D_Q0 + 2 * k + 1] > 0.5 for k in range(nq)))
+
+    @property
+    def valve_closed(self) -> bool:
+        """True when the main valve is fully closed and no opening is pending."""
+        s, _ = self.valve_opening
+        return s == 0.0 and not any(self.d[L.D_Q0 + 2 * k + 1] > 0.5 for k in range(int(self.d[L.D_NQ])))
+
+    @property
+    def valve_closed_time_s(self) -> float | None:
+        t = float(self.d[L.D_T_CLOSED])
+        return None if t < 0 else t
+
+    @property
+    def arrival_time_s(self) -> float | None:
+        """First time [s] the piston reached the end of stroke (None if not yet)."""
+        t = float(self.d[L.D_T_ARRIVE])
+        return None if t < 0 else t
+
+    @property
+    def mode(self) -> int:
+        """0 moving, 1 stuck by friction, 2 held at the extended end, 3 at the retracted end."""
+        return int(self.d[L.D_MODE])
+
+    @property
+    def stuck(self) -> bool:
+        return self.mode == L.MODE_STUCK
+
+    @property
+    def stick_events(self) -> int:
+        """Times the piston stuck mid-stroke after moving."""
+        return int(self.d[L.D_STICKS])
+
+    @property
+    def air_mass_in_kg(self) -> float:
+        """Air mass drawn from the supply since the extend command [kg]."""
+        return float(self.y[self._b + L.Y_MIN])
+
+    @property
+    def air_mass_out_kg(self) -> float:
+        """Air mass vented to atmosphere (exhaust and leaks) [kg]."""
+        return float(self.y[self._b + L.Y_MOUT])
+
+    @property
+    def total_air_mass_kg(self) -> float:
+        return float(K.total_air_mass(self.y, self.P))
+
+    @property
+    def mass_balance_error_kg(self) -> float:
+        """Air in the system minus (initial + drawn - vented): zero up to round-off."""
+        return self.total_air_mass_kg - (self._m0 + self.air_mass_in_kg - self.air_mass_out_kg)
+
+    # -- energy (thesis 5.5-5.7) -----------------------------------------------------------
+    @property
+    def driving_volume_m3(self) -> float:
+        """Driving-side volume [m³]: line (with tees) plus driving chamber at the current x."""
+        return float(self.P[L.NP:].sum() + self.P[L.P_V0D] + self.P[L.P_AP] * self.position_m)
+
+    def filled_energy_j(self, position_m: float | None = None) -> float:
+        """Potential energy [J] of the driving side filled to supply pressure (closed form)."""
+        x = self.params.cylinder.stroke_m if position_m is None else position_m
+        vol = float(self.P[L.NP:].sum() + self.P[L.P_V0D] + self.P[L.P_AP] * x)
+        return float(potential_energy(self.P[L.P_PS], vol, self.P[L.P_PA]))
+
+    @property
+    def conventional_energy_j(self) -> float:
+        """Wasted energy [J] of a conventional extension: driving side at supply, full stroke."""
+        return self.filled_energy_j()
+
+    @property
+    def driving_side_energy_j(self) -> float:
+        """Potential energy [J] of the air now in the line and the driving chamber (eq. 5.9)."""
+        return float(K.driving_side_energy(self.y, self.P))
+
+    @property
+    def energy_wasted_j(self) -> float:
+        """Energy [J] wasted when the return stroke begins now: if the supply is (to be)
+        connected, the driving side filled to supply pressure (closed form); after a cut-off,
+        the potential energy of the trapped air."""
+        if self.valve_command == 1 or not self.valve_closed:
+            return self.filled_energy_j(self.position_m)
+        return self.driving_side_energy_j
+
+    @property
+    def saving_ratio(self) -> float:
+        """Thesis eq. 5.10 against conventional actuation at the same conditions (fraction)."""
+        return 1.0 - self.energy_wasted_j / self.conventional_energy_j
+
+    @property
+    def supply_exergy_j(self) -> float:
+        """Isothermal flow exergy [J] of the air drawn from the supply."""
+        return float(flow_exergy(self.air_mass_in_kg, self.P[L.P_PS], self.P[L.P_PA],
+                                 self.P[L.P_R], self.P[L.P_T]))
+
+
+_NOREC = np.zeros((0, L.NR))
+
+
+# ------------------------------------------------------------------------------------------
+# batched plants
+# ------------------------------------------------------------------------------------------
+class PlantBatch:
+    """``B`` independent plants with the same line grid, stepped together by
+    :func:`pneugym.physics.system.advance_batch` (parallel over plants with numba ``prange``)."""
+
+    def __init__(self, params: Sequence[RigParams]):
+        if not params:
+            raise ValueError("PlantBatch needs at least one RigParams")
+        plants = [Plant(p) for p in params]
+        ns = {pl.n_cells for pl in plants}
+        if len(ns) != 1:
+            raise ValueError(f"all plants of a batch need the same line.n_cells; got {sorted(ns)}")
+        self.plants = plants
+        self.P = np.stack([pl.P for pl in plants])
+        self.Y = np.stack([pl.y for pl in plants])
+        self.D = np.stack([pl.d for pl in plants])
+        self.status = np.zeros(len(plants), dtype=np.int64)
+
+    def __len__(self) -> int:
+        return self.Y.shape[0]
+
+    def reset(self, index: int | None = None) -> None:
+        idx = range(len(self)) if index is None else [index]
+        for i in idx:
+            y, d = self.plants[i].initial_state()
+            self.Y[i], self.D[i] = y, d
+            self.status[i] = 0
+
+    def advance(self, commands: np.ndarray, duration_s: float) -> None:
+        """Command every plant and advance all by ``duration_s`` [s]; raises on any failure."""
+        cmds = np.asarray(commands, dtype=np.float64)
+        if cmds.shape != (len(self),):
+            raise ValueError(f"commands must have shape ({len(self)},), got {cmds.shape}")
+        K.advance_batch(self.Y, self.P, self.D, cmds, float(duration_s), self.status)
+        bad = np.flatnonzero(self.status)
+        if bad.size:
+            i = int(bad[0])
+            pl = self.plants[i]
+            pl.y[:], pl.d[:] = self.Y[i], self.D[i]
+            try:
+                pl._check(int(self.status[i]))
+            except SimulationError as exc:
+                raise SimulationError(f"plant {i} of the batch: {exc}") from None
+
+    def view(self, index: int) -> Plant:
+        """Plant ``index`` with its state copied from the batch (for reading observables)."""
+        pl = self.plants[index]
+        pl.y[:], pl.d[:] = self.Y[index], self.D[index]
+        return pl
