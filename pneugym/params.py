@@ -75,11 +75,11 @@ class CylinderParams:
     bore_m: float = 0.125
     rod_m: float = 0.032
     stroke_m: float = 0.18
-    dead_volume_m3: float = 5.0e-5  # calibrated: each chamber at its end of stroke, port included
-    port_area_m2: float = 1.9635e-5  # calibrated: driving port, line -> chamber
-    cushion_length_m: float = 0.015  # calibrated
-    cushion_factor_drive: float = 0.3  # calibrated: drive port area factor in the first zone
-    cushion_factor_exhaust: float = 0.08  # calibrated: exhaust area factor in the last zone
+    dead_volume_m3: float = 2.34e-4  # calibrated: each chamber at its end of stroke, port included
+    port_area_m2: float = 3.32e-5  # calibrated: driving port, line -> chamber
+    cushion_length_m: float = 0.0128  # calibrated
+    cushion_factor_drive: float = 0.452  # calibrated: drive port area factor in the first zone
+    cushion_factor_exhaust: float = 0.0101  # calibrated: exhaust area factor in the last zone
     cushion_ramp_m: float = 0.002  # smooth transition of the cushion factor (numerics)
     moving_mass_extra_kg: float = 1.0  # "other masses" Mo (thesis 6.1)
 
@@ -109,11 +109,12 @@ class LineParams:
     ``(position_m, volume_m3)`` along the line (transducer tees), added to the cell at that place.
     """
 
-    length_m: float = 1.0  # calibrated (not stated in the thesis)
+    length_m: float = 0.725  # calibrated (not stated in the thesis)
     diameter_m: float = 0.005
-    n_cells: int = 4
+    n_cells: int = 3
     model: str = "fd"
     tee_volumes: tuple[tuple[float, float], ...] = ()
+    artificial_viscosity: float = 1.0  # quadratic (von Neumann-Richtmyer) coefficient, FD only
 
     def __post_init__(self) -> None:
         _finite(self)
@@ -121,6 +122,7 @@ class LineParams:
         _check(self, "n_cells", isinstance(self.n_cells, int) and 1 <= self.n_cells <= 4096,
                "an int in [1, 4096]")
         _check(self, "model", self.model in ("fd", "lumped"), "'fd' or 'lumped'")
+        _check(self, "artificial_viscosity", 0.0 <= self.artificial_viscosity <= 10.0, "in [0, 10]")
         object.__setattr__(self, "tee_volumes", tuple((float(p), float(v)) for p, v in self.tee_volumes))
         for i, (pos, vol) in enumerate(self.tee_volumes):
             if not (math.isfinite(pos) and 0.0 <= pos <= self.length_m):
@@ -145,14 +147,14 @@ class ValveParams:
     orifice flow is linear in Δp, so that the flow is smooth through Δp = 0.
     """
 
-    area_m2: float = 1.9635e-5  # calibrated: supply path through the main valve
-    exhaust_area_m2: float = 1.9635e-5  # calibrated: exhaust chamber -> atmosphere, whole path
+    area_m2: float = 1.53e-5  # calibrated: supply path through the main valve
+    exhaust_area_m2: float = 3.22e-5  # calibrated: exhaust chamber -> atmosphere, whole path
     discharge_coefficient: float = 0.72
     delay_s: float | None = None
     ramp_s: float = 0.01
     flow_model: str = "thesis"
     iso_b: float = 0.528
-    linear_ratio: float = 0.02
+    linear_ratio: float = 0.05
 
     def __post_init__(self) -> None:
         _finite(self)

@@ -88,6 +88,7 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_LINE_A] = ln.area_m2
     P[L.P_LINE_D] = ln.diameter_m
     P[L.P_DT] = dt_s
+    P[L.P_AV] = ln.artificial_viscosity
     P[L.P_SQRT_T] = math.sqrt(g.ambient_temperature_k)
     P[L.P_OC:L.P_OC + NOC] = orifice_constants(g.gamma, g.gas_constant_j_per_kg_k,
                                                P[L.P_FLOW_MODEL], v.iso_b, v.linear_ratio)

@@ -58,7 +58,8 @@ P_LINE_D = 37      # tube inner diameter [m]
 P_DT = 38          # substep [s]
 P_SQRT_T = 39      # sqrt(ambient temperature) [sqrt(K)]
 P_OC = 40          # orifice constants block (pneugym.physics.orifice.NOC values)
-NP = 47            # start of the cell volumes
+P_AV = 47          # quadratic artificial-viscosity coefficient of the FD line (0 = none)
+NP = 48            # start of the cell volumes
 
 # --- continuous state, offsets from b = 2 n - 1 -------------------------------------------------
 Y_MD = 0    # driving-chamber air mass [kg]

@@ -7,7 +7,8 @@ Cells hold air mass ``m_i`` (pressure ``p_i = m_i R T / V_i``); faces hold mass 
 
 with ``F = q_c² / (ρ A)`` the momentum flux at cell centres (``q_c`` = mean of the cell's faces),
 ``τ = (4/3) μ du/dx`` the normal viscous stress of the thesis, and the wall friction factor ``f``
-laminar (64/Re) below Re 2300, Blasius (0.3164 Re^-0.25) above 4000, linear in between.
+laminar (64/Re) below Re 2300, Blasius (0.3164 Re^-0.25) above 4000, linear in between,
+scaled by ``n/(n-1)`` so that the interior faces carry the friction of the whole tube.
 Central differences throughout: 2nd order in space; the time integrator (SSP-RK3) is 3rd order.
 The boundary faces (valve, port) carry orifice flows that the caller computes.
 
@@ -46,12 +47,24 @@ def wall_friction(q, inv_rho, A, d, mu):
     return friction_factor(re) * q * aq * inv_rho / (2.0 * d * A)
 
 
+@njit(cache=True, inline="always")
+def _art_visc(dq_cell, inv_rho, inv_a, cq):
+    """Artificial-viscosity pressure [Pa] of a cell whose face flows differ by ``dq_cell``."""
+    if cq <= 0.0 or dq_cell >= 0.0:
+        return 0.0
+    du = dq_cell * inv_rho * inv_a
+    return cq * du * du / inv_rho
+
+
 @njit(cache=True)
-def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, dm, dq, n):
+def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, cq, dm, dq, n):
     """Right-hand side of the FD line.
 
     ``p``: cell pressures [Pa]; ``RT`` [J/kg] (isothermal line, 1/ρ = RT/p); ``q``: interior face flows ``q[0..n-2]`` (face between cell j and j+1); ``q_in``/``q_out``:
     boundary flows into cell 0 and out of cell n-1 [kg/s]. Writes ``dm`` (n) and ``dq`` (n-1).
+    ``cq``: von Neumann-Richtmyer quadratic artificial viscosity, a pressure ``cq ρ Δu²`` added in
+    compressing cells (``Δu < 0`` across the cell); O(dx²) where the flow is smooth, it keeps
+    the scheme stable through the shocks of a sudden closure.
     """
     for i in range(n):  # continuity
         qa = q_in if i == 0 else q[i - 1]
@@ -61,6 +74,9 @@ def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, dm, dq, n):
         return
     inv_a = 1.0 / A
     inv_dx = 1.0 / dx
+    # the n - 1 interior faces carry the wall friction of the whole length n dx (the end
+    # half-cells lie between a face and an orifice, where no momentum equation is solved)
+    fscale = n / (n - 1.0)
     c43 = (4.0 / 3.0) * mu * inv_a * inv_dx
     # specific volume from the pressure (isothermal: 1/ρ = RT/p), cell-centre flux and stress
     inv_rho_l = RT / p[0]
@@ -69,6 +85,7 @@ def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, dm, dq, n):
     qc = 0.5 * (qa + qb)
     flux_l = qc * qc * inv_rho_l * inv_a
     tau_l = c43 * (qb - qa) * inv_rho_l
+    pq_l = p[0] + _art_visc(qb - qa, inv_rho_l, inv_a, cq)
     for j in range(n - 1):
         i = j + 1
         qa = q[j]
@@ -77,10 +94,12 @@ def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, dm, dq, n):
         qc = 0.5 * (qa + qb)
         flux_r = qc * qc * inv_rho_r * inv_a
         tau_r = c43 * (qb - qa) * inv_rho_r
-        dq[j] = (A * (p[j] - p[i]) - (flux_r - flux_l) + A * (tau_r - tau_l)) * inv_dx \
-            - wall_friction(qa, 0.5 * (inv_rho_l + inv_rho_r), A, d, mu)
+        pq_r = p[i] + _art_visc(qb - qa, inv_rho_r, inv_a, cq)
+        dq[j] = (A * (pq_l - pq_r) - (flux_r - flux_l) + A * (tau_r - tau_l)) * inv_dx \
+            - fscale * wall_friction(qa, 0.5 * (inv_rho_l + inv_rho_r), A, d, mu)
         flux_l = flux_r
         tau_l = tau_r
+        pq_l = pq_r
         inv_rho_l = inv_rho_r
 
 

@@ -14,7 +14,7 @@ from .layout import (
     D_CMD, D_MODE, D_MOVED, D_NQ, D_Q0, D_S, D_STATUS, D_STICKS, D_T, D_T_ARRIVE, D_T_CLOSED,
     D_T_EXH, D_T_S, D_TARGET, MODE_END, MODE_MOVING, MODE_START, MODE_STUCK, NEVER, NP, NR, NY,
     P_AP, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT, P_CDA_VALVE,
-    P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DELAY, P_DT, P_DX, P_FC, P_FLOW_MODEL,
+    P_AV, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DELAY, P_DT, P_DX, P_FC, P_FLOW_MODEL,
     P_FS, P_GAMMA, P_OC, P_SQRT_T, P_ISO_B, P_KV, P_LAG, P_LIN, P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MASS,
     P_MU, P_NCELLS, P_PA, P_PS, P_R, P_RAMP, P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH,
     P_V0D, P_V0E, QCAP, R_CMD, R_MDOT, R_MIN, R_PD, R_PE, R_PPORT, R_PVALVE, R_S, R_SD, R_SE,
@@ -143,7 +143,7 @@ def rhs(tau, y, P, d, mode, dy, p):
     # line
     if P[P_LINE_MODEL] == 0.0:
         fd_rhs(y[n:b], q_in, q_port, p, RT, P[P_LINE_A], P[P_DX],
-               P[P_LINE_D], P[P_MU], dy[:n], dy[n:b], n)
+               P[P_LINE_D], P[P_MU], P[P_AV], dy[:n], dy[n:b], n)
     else:
         lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, oc, dy[:n], n)
         for j in range(n, b):

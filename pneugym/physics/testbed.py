@@ -11,7 +11,7 @@ State ``y``: ``n`` cell masses then ``n - 1`` interior face flows (as in the pla
 import numpy as np
 from numba import njit
 
-from .layout import NP, P_DX, P_CDA_LINE, P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MU, P_NCELLS, P_OC, P_R, P_SQRT_T, P_T
+from .layout import NP, P_AV, P_DX, P_CDA_LINE, P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MU, P_NCELLS, P_OC, P_R, P_SQRT_T, P_T
 from .line import fd_rhs, lumped_rhs
 from .orifice import NOC, mass_flow
 
@@ -38,7 +38,7 @@ def line_rhs(y, P, bc, dy, p):
     q_in = _boundary(bc[0], bc[1], bc[2], p[0], True, sT, oc)
     q_out = _boundary(bc[3], bc[4], bc[5], p[n - 1], False, sT, oc)
     if P[P_LINE_MODEL] == 0.0:
-        fd_rhs(y[n:2 * n - 1], q_in, q_out, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU],
+        fd_rhs(y[n:2 * n - 1], q_in, q_out, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV],
                dy[:n], dy[n:2 * n - 1], n)
     else:
         lumped_rhs(p, q_in, q_out, P[P_CDA_LINE], sT, oc, dy[:n], n)
