@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
@@ -29,11 +30,11 @@ def _finite(obj: Any) -> None:
     """Every float field must be a finite number (no NaN, no inf)."""
     for f in fields(obj):
         v = getattr(obj, f.name)
-        if isinstance(v, bool) or v is None or isinstance(v, (str, tuple, Mapping)):
+        if v is None or dataclasses.is_dataclass(v) or isinstance(v, (tuple, list, Mapping)):
             continue
-        if dataclasses.is_dataclass(v):
+        if isinstance(v, str) and "str" in str(f.type):
             continue
-        if not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
             raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a finite number")
 
 
@@ -119,8 +120,9 @@ class LineParams:
     def __post_init__(self) -> None:
         _finite(self)
         _positive(self, "length_m", "diameter_m")
-        _check(self, "n_cells", isinstance(self.n_cells, int) and 1 <= self.n_cells <= 4096,
+        _check(self, "n_cells", isinstance(self.n_cells, numbers.Integral) and 1 <= self.n_cells <= 4096,
                "an int in [1, 4096]")
+        object.__setattr__(self, "n_cells", int(self.n_cells))
         _check(self, "model", self.model in ("fd", "lumped"), "'fd' or 'lumped'")
         _check(self, "artificial_viscosity", 0.0 <= self.artificial_viscosity <= 10.0, "in [0, 10]")
         object.__setattr__(self, "tee_volumes", tuple((float(p), float(v)) for p, v in self.tee_volumes))
@@ -292,10 +294,14 @@ class RigParams:
         """Copy with changes; nested groups take dicts, e.g. ``with_(friction={"static_n": 300})``."""
         kw: dict[str, Any] = {}
         for k, v in changes.items():
-            cur = getattr(self, k) if hasattr(self, k) else None
-            if cur is None and k not in {f.name for f in fields(self)}:
+            if k not in {f.name for f in fields(self)}:
                 raise ValueError(f"RigParams has no field {k!r}")
+            cur = getattr(self, k)
             if dataclasses.is_dataclass(cur) and isinstance(v, Mapping):
+                names = {f.name for f in fields(cur)}
+                unknown = set(v) - names
+                if unknown:
+                    raise ValueError(f"{type(cur).__name__} has no field(s) {sorted(unknown)}")
                 kw[k] = replace(cur, **dict(v))
             else:
                 kw[k] = v

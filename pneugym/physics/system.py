@@ -25,6 +25,10 @@ from .line import fd_rhs, lumped_rhs
 from .orifice import NOC, mass_flow
 
 
+#: Karnopp velocity dead band [m/s]: a decelerating piston slower than this sticks if |F| <= Fs.
+V_STICK = 1e-5
+
+
 # --------------------------------------------------------------------------------------------
 # valve
 # --------------------------------------------------------------------------------------------
@@ -230,7 +234,10 @@ def substep(y, P, d, h, k, y1, y2, p):
         d[D_STATUS] = STATUS_NONPOSITIVE
         return STATUS_NONPOSITIVE
 
-    # piston events
+    # piston events (a held piston keeps its exact position: RK3 rounding must not move it)
+    if mode != MODE_MOVING:
+        y[b + Y_X] = x_old
+        y[b + Y_V] = 0.0
     stroke = P[P_STROKE]
     fs = P[P_FS]
     pd, pe, vd, ve = chamber_pressures(y, P, b)
@@ -248,11 +255,14 @@ def substep(y, P, d, h, k, y1, y2, p):
             y[b + Y_X] = 0.0
             y[b + Y_V] = 0.0
             d[D_MODE] = MODE_START
-        elif v_old != 0.0 and v_old * v <= 0.0:
-            y[b + Y_V] = 0.0
+        elif v_old != 0.0 and (v_old * v <= 0.0 or abs(v) < V_STICK):
+            # velocity reversal, or coming to rest within the dead band: Karnopp stick check
             if abs(f) <= fs:
+                y[b + Y_V] = 0.0
                 d[D_MODE] = MODE_STUCK
                 d[D_STICKS] += 1.0
+            elif v_old * v <= 0.0:
+                y[b + Y_V] = 0.0
     elif mode == MODE_STUCK:
         if abs(f) > fs:
             d[D_MODE] = MODE_MOVING

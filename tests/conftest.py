@@ -1,0 +1,61 @@
+"""Shared fixtures for the pneugym test-suite.
+
+The numba kernels are compiled once per machine (``cache=True``); a cold run of the whole suite
+spends ~10-15 s compiling. The plant runs below are cheap (a few ms each once compiled), so the
+session fixtures only exist to avoid repeating the same runs in many tests.
+
+Nothing here hard-codes calibrated defaults (areas, lengths, dead volumes): tests compare relations
+and physics, so they keep holding after a re-calibration of the default rig.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from pneugym import Plant, RigParams, Trajectory
+
+#: Simulated time [s] for runs that should reach the end of stroke. The thesis's conventional
+#: stroke takes ~1.2-1.3 s and a predicted cut-off ~1.4-1.7 s; 5 s leaves ample margin for any
+#: calibration while staying cheap (~20k substeps).
+T_MAX = 5.0
+
+
+@dataclass
+class Run:
+    """A finished plant run: the plant (read its state, do not advance it) and its trajectory."""
+
+    plant: Plant
+    traj: Trajectory
+
+    @property
+    def params(self) -> RigParams:
+        return self.plant.params
+
+
+def simulate(params: RigParams | None = None, schedule=((0.0, 1),), t_end: float = T_MAX,
+             cut_on_arrival: bool = False, record_dt: float = 1e-3) -> Run:
+    """Run a fresh plant from the thesis's initial state of an extension."""
+    plant = Plant(params or RigParams())
+    traj = plant.run(t_end, schedule=schedule, record_dt=record_dt, cut_on_arrival=cut_on_arrival)
+    return Run(plant, traj)
+
+
+def net_force(run: Run) -> np.ndarray:
+    """Net pneumatic force on the piston [N] at the recorded samples."""
+    return (run.traj["p_drive"] - run.traj["p_exhaust"]) * run.params.cylinder.piston_area_m2
+
+
+@pytest.fixture(scope="session")
+def conventional() -> Run:
+    """Default rig, conventional extension: supply connected at t = 0 and never cut."""
+    run = simulate()
+    assert run.plant.arrival_time_s is not None, "the default rig must complete a conventional stroke"
+    return run
+
+
+@pytest.fixture(scope="session")
+def end_stroke_cut() -> Run:
+    """Default rig, the thesis's end-stroke cut-off (cut the supply on arrival)."""
+    return simulate(cut_on_arrival=True)
