@@ -126,7 +126,14 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     orifice("leak drive", e.leak_drive_area_m2, v0d, math.inf)
     orifice("leak piston", e.leak_piston_area_m2, v0d, c.dead_volume_m3)
     if ln.model == "lumped" and ln.n_cells > 1:
-        orifice("between lumped line volumes", cd * ln.area_m2, vol.min(), vol.min())
+        # a chain of volumes: Gershgorin bound per cell, 2 R T (G_left + G_right) / V_i
+        def g(cda: float) -> float:
+            return linear_conductance(ps, cda, T, oc)
+        n = ln.n_cells
+        lam = max(2.0 * R * T * (g(cd * (v.area_m2 if i == 0 else ln.area_m2))
+                                 + g(cd * (c.port_area_m2 if i == n - 1 else ln.area_m2))) / vol[i]
+                  for i in range(n))
+        out["orifice chain of the lumped line"] = RK3_REAL_LIMIT / lam
     if ln.model == "fd":
         csound = math.sqrt(R * T)
         rho_a = pa / (R * T)

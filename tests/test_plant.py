@@ -635,3 +635,16 @@ def test_random_operating_points_stay_physical(load, gauge, cut):
     assert np.all(tr["x"][tr["t"] <= prm.valve_delay_s] == 0.0)
     if cut is None:
         assert run.plant.arrival_time_s is not None
+
+
+def test_lumped_line_step_is_stable_no_pressure_above_supply():
+    """The automatic substep of the lumped line (a chain of orifices) must be stable: line
+    pressures stay below the supply and settle smoothly (regression: odd-even flip-flop)."""
+    rig = RigParams().with_(line={"model": "lumped"})
+    pl = Plant(rig)
+    traj = pl.run(2.5, record_dt=1e-3)
+    ps = rig.supply_pressure_pa
+    assert traj["p_valve"].max() <= ps * (1 + 1e-9)
+    assert traj["p_port"].max() <= ps * (1 + 1e-9)
+    assert np.all(np.diff(pl.line_pressures_pa) <= 0.0)  # monotone towards the chamber at rest
+    assert pl.p_drive_pa > 0.98 * ps
