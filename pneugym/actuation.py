@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .params import RigParams
+from .physics.energy import saving_ratio
 from .plant import Plant, Trajectory
 
 #: A stroke longer than this [s] counts as stalled.
@@ -37,7 +38,7 @@ class StrokeResult:
     @property
     def saving_ratio(self) -> float:
         """Thesis eq. 5.10 (fraction)."""
-        return 1.0 - self.energy_wasted_j / self.energy_conventional_j
+        return saving_ratio(self.energy_conventional_j, self.energy_wasted_j)
 
 
 def _breakaway(traj: Trajectory) -> tuple[float | None, float | None]:

@@ -18,7 +18,7 @@ import numpy as np
 from .params import RigParams
 from .physics import layout as L
 from .physics import system as K
-from .physics.energy import flow_exergy, potential_energy
+from .physics.energy import flow_exergy, potential_energy, saving_ratio
 from .physics.orifice import NOC, linear_conductance, orifice_constants
 
 RK3_REAL_LIMIT = 2.51  # SSP-RK3 stability bound on the negative real axis (h |λ|)
@@ -458,7 +458,7 @@ class Plant:
     @property
     def saving_ratio(self) -> float:
         """Thesis eq. 5.10 against conventional actuation at the same conditions (fraction)."""
-        return 1.0 - self.energy_wasted_j / self.conventional_energy_j
+        return saving_ratio(self.conventional_energy_j, self.energy_wasted_j)
 
     @property
     def supply_exergy_j(self) -> float:

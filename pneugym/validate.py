@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .actuation import cutoff_for_time_increase, simulate_stroke
-from .params import LineParams, RigParams, ValveParams, thesis_rig
+from .params import LineParams, RigParams, thesis_rig
 from .plant import Plant, pack
 from .physics import layout as L
 from .physics.orifice import OC_CM_STAR
@@ -375,7 +375,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     keys = ("quantity", "simulated", "reference", "tolerance", "unit", "passed", "group", "relative", "note")
-    out.write_text(json.dumps({"rows": [{k: getattr(r, k) for k in keys} for r in rows],
+    def clean(v):  # strict JSON: no NaN/inf
+        return None if isinstance(v, float) and not math.isfinite(v) else v
+
+    out.write_text(json.dumps({"rows": [{k: clean(getattr(r, k)) for k in keys} for r in rows],
                                "provenance": provenance()}, indent=2, default=float))
     files = plot_report(data, Path(a.plots))
     print(f"wrote {out} and {', '.join(str(f) for f in files)}")

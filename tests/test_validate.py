@@ -1,13 +1,15 @@
 """The validation report: schema of the JSON, analytic rows pass, plots are written."""
 import json
 
+import pytest
+
 from pneugym import validate
 
 
 def test_report_json_schema_and_analytic_rows(tmp_path):
     out = tmp_path / "report.json"
     assert validate.main(["--json", str(out), "--plots", str(tmp_path)]) == 0
-    rep = json.loads(out.read_text())
+    rep = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
     rows = rep["rows"]
     for r in rows:
         assert {"quantity", "simulated", "reference", "tolerance", "unit", "passed"} <= set(r)
