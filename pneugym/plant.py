@@ -18,7 +18,7 @@ import numpy as np
 from .params import RigParams
 from .physics import layout as L
 from .physics import system as K
-from .physics.energy import flow_exergy, potential_energy, saving_ratio
+from .physics.energy import flow_exergy, saving_ratio
 from .physics.orifice import NOC, linear_conductance, orifice_constants
 
 RK3_REAL_LIMIT = 2.51  # SSP-RK3 stability bound on the negative real axis (h |λ|)
@@ -94,6 +94,17 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
                                                P[L.P_FLOW_MODEL], v.iso_b, v.linear_ratio)
     P[L.NP:] = cell_volumes(params)
     return P
+
+
+def set_supply_dip(P: np.ndarray, start_s: float, duration_s: float, depth: float) -> None:
+    """Write a supply-pressure dip into a packed parameter array (see :meth:`Plant.set_supply_dip`)."""
+    for name, val, ok in (("start_s", start_s, start_s >= 0.0),
+                          ("duration_s", duration_s, duration_s >= 0.0),
+                          ("depth", depth, 0.0 <= depth < 1.0)):
+        if not (math.isfinite(val) and ok):
+            raise ValueError(f"supply dip {name} = {val} is invalid (start and duration >= 0 s, "
+                             f"0 <= depth < 1 of the gauge supply pressure)")
+    P[L.P_DIP_T0], P[L.P_DIP_DUR], P[L.P_DIP_DEPTH] = start_s, duration_s, depth
 
 
 def stability_limits(params: RigParams) -> dict[str, float]:
@@ -256,6 +267,19 @@ class Plant:
         self._m0 = self.total_air_mass_kg
         return self
 
+    def set_supply_dip(self, start_s: float = 0.0, duration_s: float = 0.0,
+                       depth: float = 0.0) -> None:
+        """A supply-pressure dip (a disturbance of the run, kept across :meth:`reset`): the
+        supply falls by ``depth`` x its gauge pressure along a raised cosine lasting
+        ``duration_s`` [s] from ``start_s`` [s]. ``duration_s = 0`` removes it."""
+        set_supply_dip(self.P, start_s, duration_s, depth)
+
+    @property
+    def supply_dip(self) -> tuple[float, float, float]:
+        """``(start_s, duration_s, depth)`` of the supply-pressure dip (duration 0 = none)."""
+        return (float(self.P[L.P_DIP_T0]), float(self.P[L.P_DIP_DUR]),
+                float(self.P[L.P_DIP_DEPTH]))
+
     def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
         """A copy of the state, for :meth:`restore` (e.g. to search over cut-off times)."""
         return self.y.copy(), self.d.copy()
@@ -377,8 +401,7 @@ class Plant:
     @property
     def valve_closed(self) -> bool:
         """True when the main valve is fully closed and no opening is pending."""
-        s, _ = self.valve_opening
-        return s == 0.0 and not any(self.d[L.D_Q0 + 2 * k + 1] > 0.5 for k in range(int(self.d[L.D_NQ])))
+        return bool(K.valve_closed(self.d, self.P))
 
     @property
     def valve_closed_time_s(self) -> float | None:
@@ -433,8 +456,7 @@ class Plant:
     def filled_energy_j(self, position_m: float | None = None) -> float:
         """Potential energy [J] of the driving side filled to supply pressure (closed form)."""
         x = self.params.cylinder.stroke_m if position_m is None else position_m
-        vol = float(self.P[L.NP:].sum() + self.P[L.P_V0D] + self.P[L.P_AP] * x)
-        return float(potential_energy(self.P[L.P_PS], vol, self.P[L.P_PA]))
+        return float(K.filled_energy(self.P, x))
 
     @property
     def conventional_energy_j(self) -> float:
@@ -451,9 +473,7 @@ class Plant:
         """Energy [J] wasted when the return stroke begins now: if the supply is (to be)
         connected, the driving side filled to supply pressure (closed form); after a cut-off,
         the potential energy of the trapped air."""
-        if self.valve_command == 1 or not self.valve_closed:
-            return self.filled_energy_j(self.position_m)
-        return self.driving_side_energy_j
+        return float(K.energy_wasted(self.y, self.P, self.d))
 
     @property
     def saving_ratio(self) -> float:
@@ -499,6 +519,21 @@ class PlantBatch:
             y, d = self.plants[i].initial_state()
             self.Y[i], self.D[i] = y, d
             self.status[i] = 0
+
+    def set_params(self, index: int, params: RigParams) -> None:
+        """Replace plant ``index`` by a new rig (same ``line.n_cells``) and reset it."""
+        if params.line.n_cells != self.plants[0].n_cells:
+            raise ValueError(f"all plants of a batch need the same line.n_cells "
+                             f"({self.plants[0].n_cells}); got {params.line.n_cells}")
+        self.plants[index] = Plant(params)
+        self.P[index] = self.plants[index].P
+        self.reset(index)
+
+    def set_supply_dip(self, index: int, start_s: float = 0.0, duration_s: float = 0.0,
+                       depth: float = 0.0) -> None:
+        """Supply-pressure dip of plant ``index`` (see :meth:`Plant.set_supply_dip`)."""
+        set_supply_dip(self.P[index], start_s, duration_s, depth)
+        self.plants[index].P[:] = self.P[index]
 
     def advance(self, commands: np.ndarray, duration_s: float) -> None:
         """Command every plant and advance all by ``duration_s`` [s]; raises on any failure."""

@@ -59,7 +59,10 @@ P_DT = 38          # substep [s]
 P_SQRT_T = 39      # sqrt(ambient temperature) [sqrt(K)]
 P_OC = 40          # orifice constants block (pneugym.physics.orifice.NOC values)
 P_AV = 47          # quadratic artificial-viscosity coefficient of the FD line (0 = none)
-NP = 48            # start of the cell volumes
+P_DIP_T0 = 48      # supply-pressure dip: start time [s]
+P_DIP_DUR = 49     # supply-pressure dip: duration [s] (0 = no dip)
+P_DIP_DEPTH = 50   # supply-pressure dip: depth, fraction of the gauge supply pressure
+NP = 51            # start of the cell volumes
 
 # --- continuous state, offsets from b = 2 n - 1 -------------------------------------------------
 Y_MD = 0    # driving-chamber air mass [kg]

@@ -14,7 +14,7 @@ from .layout import (
     D_CMD, D_MODE, D_MOVED, D_NQ, D_Q0, D_S, D_STATUS, D_STICKS, D_T, D_T_ARRIVE, D_T_CLOSED,
     D_T_EXH, D_T_S, D_TARGET, MODE_END, MODE_MOVING, MODE_START, MODE_STUCK, NEVER, NP, NR, NY,
     P_AP, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT, P_CDA_VALVE,
-    P_AV, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DELAY, P_DT, P_DX, P_FC,
+    P_AV, P_CUSH_FD, P_DIP_DEPTH, P_DIP_DUR, P_DIP_T0, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DELAY, P_DT, P_DX, P_FC,
     P_FS, P_GAMMA, P_OC, P_SQRT_T, P_KV, P_LAG, P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MASS,
     P_MU, P_NCELLS, P_PA, P_PS, P_R, P_RAMP, P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH,
     P_V0D, P_V0E, QCAP, R_CMD, R_MDOT, R_MIN, R_PD, R_PE, R_PPORT, R_PVALVE, R_S, R_SD, R_SE,
@@ -104,6 +104,19 @@ def _pop_due_commands(d, P, t):
 # pressures and right-hand side
 # --------------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
+def supply_pressure(P, tau):
+    """Supply pressure [Pa] at time ``tau``: the set-point, minus an optional raised-cosine dip
+    of ``P[P_DIP_DEPTH]`` times the gauge pressure, lasting ``P[P_DIP_DUR]`` from ``P[P_DIP_T0]``."""
+    ps = P[P_PS]
+    dur = P[P_DIP_DUR]
+    if dur > 0.0:
+        u = (tau - P[P_DIP_T0]) / dur
+        if 0.0 < u < 1.0:
+            ps -= P[P_DIP_DEPTH] * (ps - P[P_PA]) * 0.5 * (1.0 - math.cos(2.0 * math.pi * u))
+    return ps
+
+
+@njit(cache=True, inline="always")
 def chamber_pressures(y, P, b):
     """Driving and exhaust chamber pressures [Pa] and volumes [m³] for state ``y``."""
     x = min(max(y[b + Y_X], 0.0), P[P_STROKE])
@@ -134,7 +147,7 @@ def rhs(tau, y, P, d, mode, dy, p):
 
     q_in = 0.0
     if s > 0.0:
-        q_in = mass_flow(P[P_PS], p[0], s * P[P_CDA_VALVE], sT, sT, oc)
+        q_in = mass_flow(supply_pressure(P, tau), p[0], s * P[P_CDA_VALVE], sT, sT, oc)
     fd = cushion_factor(x, P[P_CUSH_LEN], P[P_CUSH_FD], P[P_CUSH_RAMP])
     fe = cushion_factor(stroke - x, P[P_CUSH_LEN], P[P_CUSH_FE], P[P_CUSH_RAMP])
     q_port = mass_flow(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, oc)
@@ -323,7 +336,7 @@ def supply_flow(y, P, d):
     if s <= 0.0:
         return 0.0
     p0 = y[0] * P[P_R] * P[P_T] / P[NP]
-    return mass_flow(P[P_PS], p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
+    return mass_flow(supply_pressure(P, d[D_T]), p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
                      P[P_OC:P_OC + NOC])
 
 
@@ -399,6 +412,54 @@ def driving_side_energy(y, P):
     pd, pe, vd, ve = chamber_pressures(y, P, b)
     e += potential_energy(pd, vd, pa)
     return e
+
+
+@njit(cache=True)
+def valve_closed(d, P):
+    """True when the main valve is fully closed and no opening is pending."""
+    s, se = valve_opening(d, P, d[D_T])
+    if s > 0.0:
+        return False
+    for k in range(int(d[D_NQ])):
+        if d[D_Q0 + 2 * k + 1] > 0.5:
+            return False
+    return True
+
+
+@njit(cache=True)
+def filled_energy(P, x):
+    """Potential energy [J] of the driving side filled to the supply set-point with the piston
+    at ``x`` [m] (the closed form of a conventional stroke)."""
+    n = int(P[P_NCELLS])
+    vol = P[P_V0D] + P[P_AP] * x
+    for i in range(n):
+        vol += P[NP + i]
+    return potential_energy(P[P_PS], vol, P[P_PA])
+
+
+@njit(cache=True)
+def energy_wasted(y, P, d):
+    """Energy [J] wasted if the return stroke began now (thesis 5.5-5.7): the driving side filled
+    to supply pressure while the supply is (or will be) connected, else the trapped air."""
+    b = 2 * int(P[P_NCELLS]) - 1
+    if d[D_CMD] > 0.5 or not valve_closed(d, P):
+        return filled_energy(P, y[b + Y_X])
+    return driving_side_energy(y, P)
+
+
+@njit(cache=True)
+def max_drive_force(y, P):
+    """Largest net force [N] the driving-side air can still push with if no more air comes in:
+    line and driving chamber equalised, exhaust vented to ambient. A stuck piston whose
+    ``max_drive_force`` is at most the breakaway friction can never move again."""
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
+    m = y[b + Y_MD]
+    vol = P[P_V0D] + P[P_AP] * min(max(y[b + Y_X], 0.0), P[P_STROKE])
+    for i in range(n):
+        m += y[i]
+        vol += P[NP + i]
+    return (m * P[P_R] * P[P_T] / vol - P[P_PA]) * P[P_AP]
 
 
 @njit(cache=True)
