@@ -8,6 +8,9 @@ from .params import (
     ValveParams, thesis_rig,
 )
 from .plant import Plant, PlantBatch, SimulationError, Trajectory
+from .envs import register as _register_envs
+
+_register_envs()
 
 __version__ = "0.1.0"
 

@@ -1,0 +1,79 @@
+"""The common policy interface and a reader that turns observations back into physical units."""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+
+class ObservationReader:
+    """Reads the newest sample's features of a ``pneugym/CutOff-v0`` observation in SI units
+    (pressures gauge [Pa]), from the environment's ``observation_layout()``."""
+
+    def __init__(self, layout: Mapping[str, Any]):
+        self.layout = dict(layout)
+        feats = layout["features"]
+        self.size = int(layout["size"])
+        base = (int(layout["history"]) - 1) * len(feats)
+        self._index = {f["name"]: (base + k, float(f["scale"])) for k, f in enumerate(feats)}
+
+    def __call__(self, obs: np.ndarray, name: str) -> np.ndarray:
+        """Feature ``name`` of the newest sample of each row of ``obs`` (B, size)."""
+        if name not in self._index:
+            raise KeyError(f"observation has no feature {name!r}; have {sorted(self._index)}")
+        k, scale = self._index[name]
+        return obs[:, k].astype(np.float64) * scale
+
+
+class Policy:
+    """Base class: subclasses implement :meth:`act` on a batch of observations (B, size)."""
+
+    name = "policy"
+
+    def __init__(self, layout: Mapping[str, Any]):
+        self.read = ObservationReader(layout)
+
+    @classmethod
+    def for_env(cls, env, **kwargs: Any) -> "Policy":
+        """The policy for an environment (single or vector) of ``pneugym/CutOff-v0``."""
+        u = env.unwrapped
+        return cls(u.observation_layout(), **kwargs)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def begin_episodes(self, conditions: Sequence[Any]) -> None:
+        """Told the conditions of the episodes about to start (one per observation row).
+        Only privileged policies (the oracle) use it; the others ignore it."""
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """Actions (0 keep the supply, 1 cut off) for one observation or a batch, as in SB3."""
+        o = np.asarray(obs)
+        single = o.ndim == 1
+        o = o.reshape(-1, self.read.size)
+        a = np.asarray(self.act(o), dtype=np.int64).reshape(o.shape[0])
+        return (a[0] if single else a), state
+
+
+def run_first_episodes(env, policy: Policy, conditions: Sequence[Any], seed: int
+                       ) -> dict[str, np.ndarray]:
+    """Run the first episode of every sub-environment of a vector env under ``conditions`` and
+    return the final-info arrays (one entry per sub-environment)."""
+    n = env.num_envs
+    obs, _ = env.reset(seed=seed, options={"conditions": list(conditions)})
+    policy.begin_episodes(list(conditions))
+    out: dict[str, list] = {}
+    done = np.zeros(n, dtype=bool)
+    state = None
+    while not done.all():
+        act, state = policy.predict(obs, state)
+        obs, _, term, trunc, info = env.step(act)
+        if "final_info" in info:
+            fi = info["final_info"]
+            for i in np.flatnonzero(info["_final_info"] & ~done):
+                for key, val in fi.items():
+                    if not key.startswith("_"):
+                        out.setdefault(key, [None] * n)[i] = val[i]
+                done[i] = True
+    return {k: np.array(v) for k, v in out.items()}

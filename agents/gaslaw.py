@@ -1,0 +1,165 @@
+"""The thesis's Gas-Law predictor (eqs. 1.3, 5.1, 6.5): cut the supply when
+
+    P > K * P_st * (V_o / V)^n,     P_st = Fs / A_p,
+
+``P`` the driving-chamber pressure, ``V`` the driving-chamber volume now and ``V_o`` at full stroke,
+``n`` the identified expansion index (2.7 in the thesis). The rule only knows the nominal rig
+(breakaway friction, bore, dead volume); its factor ``K`` must be retuned whenever load, supply or
+friction change. Here ``K`` is calibrated per supply pressure on the nominal rig by a sweep
+(:func:`calibrate`; the thesis tuned it by trial) and interpolated on the supply set-point.
+
+``python -m agents.gaslaw`` re-runs the calibration and writes ``agents/gaslaw_k.json`` and a plot.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from pneugym.params import RigParams
+
+from .base import Policy, run_first_episodes
+
+CALIBRATION_FILE = Path(__file__).with_name("gaslaw_k.json")
+#: K used by the thesis (5.8, 6.5): on the rig, and in its own simulation.
+THESIS_K = {"experiment": {1.5: 0.1, 2.5: 0.2}, "simulation": {1.5: 2.2, 2.5: 1.2}}
+
+
+def load_calibration(path: Path | str = CALIBRATION_FILE) -> dict[float, float]:
+    """``{supply_bar_gauge: K}`` from a calibration file."""
+    with open(path) as f:
+        data = json.load(f)
+    return {float(r["supply_bar_gauge"]): float(r["k"]) for r in data["table"]}
+
+
+class GasLawPolicy(Policy):
+    """Eq. 5.1 on the measured position and driving-port pressure.
+
+    ``k``: a number, a table ``{supply_bar_gauge: K}`` (interpolated linearly on the supply
+    set-point, held constant outside), or an array with one K per observation row; default: the
+    calibrated table. ``pressure``: ``"gauge"`` or ``"absolute"`` for ``P`` and ``P_st``
+    (the thesis does not say). ``volume``: ``"chamber"`` (dead volume included) or ``"position"``
+    (``x_end / x``, as in the thesis's appendix code)."""
+
+    name = "gaslaw"
+
+    def __init__(self, layout: Mapping[str, Any], k: float | Mapping[float, float] | np.ndarray |
+                 None = None, n: float = 2.7, pressure: str = "gauge", volume: str = "chamber",
+                 rig: RigParams | None = None):
+        super().__init__(layout)
+        if pressure not in ("gauge", "absolute"):
+            raise ValueError(f"pressure = {pressure!r}: choose 'gauge' or 'absolute'")
+        if volume not in ("chamber", "position"):
+            raise ValueError(f"volume = {volume!r}: choose 'chamber' or 'position'")
+        if not (math.isfinite(n) and n > 0):
+            raise ValueError(f"n = {n!r} must be > 0")
+        self.rig = rig or RigParams()
+        self.n, self.pressure, self.volume = float(n), pressure, volume
+        if k is None:
+            k = load_calibration()
+        if isinstance(k, Mapping):
+            pts = sorted((float(p), float(v)) for p, v in k.items())
+            self._k_bar = np.array([p for p, _ in pts])
+            self._k_val = np.array([v for _, v in pts])
+            self.k: Any = dict(pts)
+        else:
+            self._k_bar = None
+            self.k = np.asarray(k, dtype=float)
+        if np.any(~np.isfinite(self._k_val if self._k_bar is not None else self.k)) or \
+                np.any((self._k_val if self._k_bar is not None else self.k) < 0):
+            raise ValueError(f"k = {k!r} must be finite and >= 0")
+        c = self.rig.cylinder
+        self._area = c.piston_area_m2
+        self._v0 = c.dead_volume_m3 + self.rig.effects.dead_volume_m3
+        self._stroke = c.stroke_m
+        self._pa = self.rig.gas.ambient_pressure_pa
+        p_st = self.rig.friction.static_n / self._area
+        self._p_st = p_st if pressure == "gauge" else p_st + self._pa
+
+    def k_for(self, supply_gauge_pa: np.ndarray) -> np.ndarray:
+        """K for each supply set-point [Pa gauge]."""
+        if self._k_bar is None:
+            return np.broadcast_to(self.k, supply_gauge_pa.shape)
+        return np.interp(supply_gauge_pa / 1e5, self._k_bar, self._k_val)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        x = np.clip(self.read(obs, "position"), 0.0, self._stroke)
+        p = self.read(obs, "p_drive") + (self._pa if self.pressure == "absolute" else 0.0)
+        if self.volume == "chamber":
+            ratio = (self._v0 + self._area * self._stroke) / (self._v0 + self._area * x)
+        else:
+            ratio = self._stroke / np.maximum(x, 1e-6)
+        k = self.k_for(self.read(obs, "supply_setpoint"))
+        return (p > k * self._p_st * ratio ** self.n).astype(np.int64)
+
+
+def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] | None = None,
+          seed: int = 0, **policy_kwargs: Any) -> np.ndarray:
+    """The episode return of the Gas-Law rule for each K on the nominal rig (10 kg) at
+    ``supply_bar`` gauge: one batched run, one sub-environment per K."""
+    from pneugym.envs import Conditions
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    ks = np.asarray(ks, dtype=float)
+    env = CutOffVectorEnv(num_envs=ks.size, **dict(env_config or {}))
+    pol = GasLawPolicy(env.observation_layout(), k=ks, rig=env.rig, **policy_kwargs)
+    cond = Conditions(supply_pressure_gauge_pa=supply_bar * 1e5)
+    return run_first_episodes(env, pol, [cond] * ks.size, seed)["objective"]
+
+
+def calibrate(supplies_bar: Sequence[float] = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0),
+              ks: Sequence[float] | None = None, env_config: Mapping[str, Any] | None = None,
+              seed: int = 0, **policy_kwargs: Any) -> dict[str, Any]:
+    """Best K per supply pressure (maximum episode return on the nominal rig)."""
+    from tqdm import tqdm
+
+    ks = np.geomspace(0.02, 20.0, 64) if ks is None else np.asarray(ks, dtype=float)
+    table, curves = [], {}
+    for p in tqdm(supplies_bar, desc="Gas-Law K sweep", unit="pressure"):
+        j = sweep(p, ks, env_config, seed, **policy_kwargs)
+        i = int(np.argmax(j))
+        table.append({"supply_bar_gauge": float(p), "k": float(ks[i]), "return": float(j[i])})
+        curves[str(p)] = [float(v) for v in j]
+    return {"table": table, "k_grid": [float(v) for v in ks], "returns": curves,
+            "thesis_k": {k: {str(p): v for p, v in d.items()} for k, d in THESIS_K.items()},
+            "env_config": dict(env_config or {}), "policy": dict(policy_kwargs), "seed": seed}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default=str(CALIBRATION_FILE), help="calibration JSON")
+    ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    from pneugym.provenance import provenance
+
+    result = calibrate(seed=args.seed)
+    result["provenance"] = provenance()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    print(f"{'supply [bar g]':>14} {'K calibrated':>12} {'return':>8}   thesis K (rig / sim)")
+    for r in result["table"]:
+        p = r["supply_bar_gauge"]
+        th = "  /  ".join(str(THESIS_K[s].get(p, "-")) for s in ("experiment", "simulation"))
+        print(f"{p:14.1f} {r['k']:12.3g} {r['return']:8.3f}   {th}")
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for p, j in result["returns"].items():
+            ax.semilogx(result["k_grid"], j, label=f"{p} bar")
+        ax.set_ylim(-2.0, 0.0)
+        ax.set_xlabel("K"), ax.set_ylabel("episode return (objective)")
+        ax.set_title("Gas-Law rule on the nominal rig"), ax.legend(), ax.grid(alpha=0.3)
+        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(args.plot, dpi=120, bbox_inches="tight")
+        print(f"wrote {args.out} and {args.plot}")
+
+
+if __name__ == "__main__":
+    main()

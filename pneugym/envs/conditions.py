@@ -1,0 +1,215 @@
+"""Operating conditions of one episode and the distributions they are drawn from.
+
+A :class:`Conditions` is everything that makes one stroke differ from another on the same rig:
+supply set-point, load, friction and valve-delay scales, a supply-pressure dip and the sensor
+noise. A :class:`ConditionSpace` says how to draw them (each field a fixed value or a uniform
+``(low, high)`` range); :data:`PRESETS` names the standard ones. All draws go through the
+``numpy.random.Generator`` handed in (the environment's ``np_random``), so a seed reproduces them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..params import RigParams
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """The conditions of one episode (SI units, gauge supply pressure).
+
+    ``friction_scale`` multiplies the static, Coulomb and viscous friction; ``valve_delay_scale``
+    the rig's switching delay at this supply pressure. The dip lowers the supply by ``dip_depth``
+    times its gauge pressure along a raised cosine (``dip_duration_s = 0``: no dip). Sensor noise
+    is white and Gaussian, with these standard deviations, on the sampled sensors only.
+    """
+
+    supply_pressure_gauge_pa: float = 250_000.0
+    load_mass_kg: float = 10.0
+    friction_scale: float = 1.0
+    valve_delay_scale: float = 1.0
+    dip_start_s: float = 0.0
+    dip_duration_s: float = 0.0
+    dip_depth: float = 0.0
+    position_noise_m: float = 0.0
+    pressure_noise_pa: float = 0.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "supply_pressure_gauge_pa": self.supply_pressure_gauge_pa > 0,
+            "load_mass_kg": self.load_mass_kg >= 0,
+            "friction_scale": self.friction_scale >= 0,
+            "valve_delay_scale": self.valve_delay_scale > 0,
+            "dip_start_s": self.dip_start_s >= 0,
+            "dip_duration_s": self.dip_duration_s >= 0,
+            "dip_depth": 0 <= self.dip_depth < 1,
+            "position_noise_m": self.position_noise_m >= 0,
+            "pressure_noise_pa": self.pressure_noise_pa >= 0,
+        }
+        for name, ok in checks.items():
+            val = getattr(self, name)
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and ok):
+                raise ValueError(f"Conditions.{name} = {val!r} is invalid")
+
+    @property
+    def supply_bar_gauge(self) -> float:
+        return self.supply_pressure_gauge_pa / 1e5
+
+    @property
+    def dip(self) -> tuple[float, float, float]:
+        """``(start_s, duration_s, depth)`` for :meth:`pneugym.plant.Plant.set_supply_dip`."""
+        return self.dip_start_s, self.dip_duration_s, self.dip_depth
+
+    def rig(self, base: RigParams | None = None) -> RigParams:
+        """``base`` (default: the thesis rig) under these conditions."""
+        base = base or RigParams()
+        rig = base.with_(supply_pressure_gauge_pa=float(self.supply_pressure_gauge_pa),
+                         load_mass_kg=float(self.load_mass_kg))
+        f = rig.friction
+        s = self.friction_scale
+        return rig.with_(
+            friction={"static_n": f.static_n * s, "coulomb_n": f.coulomb_n * s,
+                      "viscous_n_s_per_m": f.viscous_n_s_per_m * s},
+            valve={"delay_s": rig.valve_delay_s * self.valve_delay_scale})
+
+    def physics_key(self) -> tuple[float, ...]:
+        """The fields that change the plant's motion (not the sensor noise)."""
+        return (self.supply_pressure_gauge_pa, self.load_mass_kg, self.friction_scale,
+                self.valve_delay_scale, self.dip_start_s, self.dip_duration_s, self.dip_depth)
+
+    def to_dict(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+
+Range = tuple[float, float]
+
+
+def _as_range(name: str, value: Any) -> Range:
+    if isinstance(value, (int, float)):
+        lo = hi = float(value)
+    else:
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise ValueError(f"ConditionSpace.{name} must be a number or a (low, high) pair; "
+                             f"got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise ValueError(f"ConditionSpace.{name} = {value!r}: need finite low <= high")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class ConditionSpace:
+    """Uniform ranges ``(low, high)`` to draw :class:`Conditions` from (a number = fixed).
+
+    A dip happens with probability ``dip_probability``; its depth, duration and start are then
+    drawn from their ranges (the start counted from the extend command).
+    """
+
+    supply_pressure_gauge_pa: Range = (250_000.0, 250_000.0)
+    load_mass_kg: Range = (10.0, 10.0)
+    friction_scale: Range = (1.0, 1.0)
+    valve_delay_scale: Range = (1.0, 1.0)
+    dip_probability: float = 0.0
+    dip_depth: Range = (0.0, 0.0)
+    dip_duration_s: Range = (0.0, 0.0)
+    dip_start_s: Range = (0.0, 0.0)
+    position_noise_m: Range = (0.0, 0.0)
+    pressure_noise_pa: Range = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if f.name == "dip_probability":
+                if not 0.0 <= self.dip_probability <= 1.0:
+                    raise ValueError(f"ConditionSpace.dip_probability = {self.dip_probability!r} "
+                                     f"must be in [0, 1]")
+                continue
+            object.__setattr__(self, f.name, _as_range(f.name, getattr(self, f.name)))
+        # the extremes must make valid conditions
+        for pick in (0, 1):
+            Conditions(**{f.name: getattr(self, f.name)[pick] for f in fields(Conditions)})
+
+    def with_(self, **changes: Any) -> "ConditionSpace":
+        names = {f.name for f in fields(self)}
+        unknown = set(changes) - names
+        if unknown:
+            raise ValueError(f"ConditionSpace has no field(s) {sorted(unknown)}; "
+                             f"known: {sorted(names)}")
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def is_fixed(self) -> bool:
+        """True if every draw gives the same motion (no range, no random dip)."""
+        ranged = [getattr(self, f.name) for f in fields(self)
+                  if f.name not in ("dip_probability", "position_noise_m", "pressure_noise_pa")]
+        return all(lo == hi for lo, hi in ranged) and self.dip_probability in (0.0, 1.0)
+
+    def sample(self, rng: np.random.Generator) -> Conditions:
+        """Draw one :class:`Conditions` (a fixed number of draws, so streams stay aligned)."""
+        u = rng.random(10)
+
+        def pick(name: str, k: int) -> float:
+            lo, hi = getattr(self, name)
+            return lo + (hi - lo) * float(u[k])
+
+        dip = float(u[4]) < self.dip_probability
+        return Conditions(
+            supply_pressure_gauge_pa=pick("supply_pressure_gauge_pa", 0),
+            load_mass_kg=pick("load_mass_kg", 1),
+            friction_scale=pick("friction_scale", 2),
+            valve_delay_scale=pick("valve_delay_scale", 3),
+            dip_depth=pick("dip_depth", 5) if dip else 0.0,
+            dip_duration_s=pick("dip_duration_s", 6) if dip else 0.0,
+            dip_start_s=pick("dip_start_s", 7) if dip else 0.0,
+            position_noise_m=pick("position_noise_m", 8),
+            pressure_noise_pa=pick("pressure_noise_pa", 9),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def fixed(c: Conditions) -> ConditionSpace:
+    """The space that always draws ``c``."""
+    d = c.to_dict()
+    return ConditionSpace(dip_probability=1.0 if c.dip_duration_s > 0 else 0.0,
+                          **{k: (v, v) for k, v in d.items()})
+
+
+PRESETS: dict[str, ConditionSpace] = {
+    # the thesis's two operating points: nominal rig, 10 kg, no disturbance
+    "thesis-1.5bar": ConditionSpace(supply_pressure_gauge_pa=150_000.0),
+    "thesis-2.5bar": ConditionSpace(supply_pressure_gauge_pa=250_000.0),
+    # domain randomisation for learning robust policies
+    "randomized": ConditionSpace(
+        supply_pressure_gauge_pa=(150_000.0, 500_000.0), load_mass_kg=(5.0, 30.0),
+        friction_scale=(0.7, 1.3), valve_delay_scale=(0.8, 1.2),
+        dip_probability=0.5, dip_depth=(0.0, 0.3), dip_duration_s=(0.05, 0.3),
+        dip_start_s=(0.0, 1.0), position_noise_m=(0.0, 3e-5), pressure_noise_pa=(0.0, 400.0)),
+}
+
+
+def resolve(preset: str | ConditionSpace | Conditions | None,
+            overrides: Mapping[str, Any] | None = None) -> ConditionSpace:
+    """A :class:`ConditionSpace` from a preset name, a space or fixed conditions, with field
+    overrides (numbers or ranges)."""
+    if preset is None:
+        space = PRESETS["thesis-2.5bar"]
+    elif isinstance(preset, ConditionSpace):
+        space = preset
+    elif isinstance(preset, Conditions):
+        space = fixed(preset)
+    elif isinstance(preset, str):
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+        space = PRESETS[preset]
+    else:
+        raise ValueError(f"preset must be a name, a ConditionSpace or Conditions; got {preset!r}")
+    return space.with_(**dict(overrides)) if overrides else space
+
+
+__all__ = ["Conditions", "ConditionSpace", "PRESETS", "resolve", "fixed"]

@@ -1,0 +1,461 @@
+"""The cut-off environment: decide, every control period, whether to cut off the air supply of a
+pneumatic cylinder during its extension stroke.
+
+**Episode.** One extension stroke of the thesis rig, from the extend command (``t = 0``; the
+valve opens only after its switching delay) to the end of the stroke. It *terminates* when the
+piston has reached the end of stroke and either the supply has actually closed (valve delay and
+ramp elapsed) after a cut-off, or ``decision_window_s`` has passed since the arrival without a
+cut-off (the supply then stays connected and the driving side counts as filled to supply
+pressure); or as a **stall**, when the piston is stuck short of the stroke with the supply cut and
+closed, and the trapped air can no longer push it past the breakaway friction. It is *truncated*
+at ``time_limit_s``.
+
+**Action** ``Discrete(2)``: 0 = keep the supply connected, 1 = cut it off. The cut-off is latched
+(as in the thesis) unless ``reversible=True``, where each action sets the valve command.
+
+**Observation** ``Box(float32)``: ``history`` samples (oldest first) of the seven sensor features
+of :data:`OBSERVATION`, each ``(value - offset) / scale``, then, with ``observe_params=True``, the
+privileged features of :data:`PARAM_OBSERVATION`.
+
+**Reward.** The return of an episode equals its objective
+
+    J = - E_wasted / E_conv - w_time * max(0, T / T_conv - 1) - w_stick * n_stick
+        - w_stall * (stroke not completed)
+
+with ``E_wasted`` the air potential energy left in the driving side when the return stroke
+would begin (thesis eq. 5.9), ``E_conv`` that of a conventional stroke at the same conditions
+(closed form), ``T`` the stroke time (the time limit if it never completed), ``T_conv`` the
+conventional stroke time at the same conditions (simulated once per condition and cached) and
+``n_stick`` the stick-slip events. ``reward_mode="dense"`` (default) pays the change of ``J``
+evaluated on the current state every step (it telescopes to ``J`` exactly); ``"sparse"`` pays
+``J`` at the last step.
+
+**Conditions** (load, supply, friction and valve-delay scales, a supply-pressure dip, sensor
+noise) are drawn at every reset from a :class:`~pneugym.envs.conditions.ConditionSpace` with
+``self.np_random``; ``reset(options={"conditions": Conditions(...)})`` forces them.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..params import RigParams
+from ..physics import layout as L
+from ..physics import system as K
+from ..physics.energy import saving_ratio
+from ..plant import Plant, SimulationError, set_supply_dip
+from . import episode as EP
+from .conditions import Conditions, ConditionSpace, resolve
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One observation element: ``(value - offset) / scale``."""
+
+    name: str
+    unit: str
+    scale: float
+    offset: str = "0"
+    description: str = ""
+
+
+PRESSURE_SCALE_PA = 6e5
+VELOCITY_SCALE_M_S = 0.5
+
+#: The sensor features of one sample (computed by :func:`pneugym.envs.episode.sense`).
+OBSERVATION: tuple[Feature, ...] = (
+    Feature("position", "m", math.nan, "0", "piston position from the retracted end / stroke"),
+    Feature("velocity", "m/s", VELOCITY_SCALE_M_S, "0",
+            "velocity estimate: difference of the last two measured positions / period"),
+    Feature("p_drive", "Pa", PRESSURE_SCALE_PA, "ambient", "driving-port transducer, gauge"),
+    Feature("p_exhaust", "Pa", PRESSURE_SCALE_PA, "ambient", "exhaust-port transducer, gauge"),
+    Feature("supply_setpoint", "Pa", PRESSURE_SCALE_PA, "ambient", "supply set-point, gauge"),
+    Feature("time", "s", math.nan, "0", "time since the extend command / time_limit_s"),
+    Feature("supply_cut", "-", 1.0, "0", "1 while the supply is cut"),
+)
+#: Privileged features (``observe_params=True``): the true conditions of the episode.
+PARAM_OBSERVATION: tuple[Feature, ...] = (
+    Feature("load_mass", "kg", 30.0, "0", "payload"),
+    Feature("friction_scale", "-", 1.0, "0", "factor on the nominal friction"),
+    Feature("valve_delay", "s", 0.4, "0", "valve switching delay"),
+)
+OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
+
+
+@functools.lru_cache(maxsize=4096)
+def _template(params: RigParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Packed parameters and the initial state ``(P, y0, d0)`` of a rig (cached)."""
+    plant = Plant(params)
+    return plant.P.copy(), plant.y.copy(), plant.d.copy()
+
+
+@functools.lru_cache(maxsize=4096)
+def conventional_figures(params: RigParams, dip: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                         t_max_s: float = 20.0) -> tuple[float, float]:
+    """Conventional stroke time [s] (valve delay included) and wasted energy [J] of ``params``
+    with a supply dip, simulated once and cached. Raises ``ValueError`` if it never arrives."""
+    plant = Plant(params)
+    plant.set_supply_dip(*dip)
+    plant.advance(t_max_s, command=1, stop_on_arrival=True)
+    if plant.arrival_time_s is None:
+        raise ValueError(f"the conventional stroke does not complete within {t_max_s} s for "
+                         f"{params.supply_pressure_gauge_pa / 1e5:.3g} bar gauge, "
+                         f"{params.load_mass_kg} kg: the conditions are beyond the rig")
+    return plant.arrival_time_s, plant.conventional_energy_j
+
+
+class _CutOffCore:
+    """The state and logic shared by :class:`CutOffEnv` (one episode) and
+    :class:`CutOffVectorEnv` (a batch): packed plants ``Y, P, D``, episode arrays ``E``."""
+
+    def _configure(self, n: int, preset, conditions, rig, control_period_s, time_limit_s,
+                   decision_window_s, reversible, history, observe_params, sensor_lag_s,
+                   w_time, w_stall, w_stick, reward_mode) -> None:
+        checks = {
+            "control_period_s": control_period_s > 0, "time_limit_s": time_limit_s > 0,
+            "decision_window_s": decision_window_s >= 0, "w_time": w_time >= 0,
+            "w_stall": w_stall >= 0, "w_stick": w_stick >= 0, "sensor_lag_s": sensor_lag_s >= 0,
+        }
+        for name, ok in checks.items():
+            val = locals()[name]
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and ok):
+                raise ValueError(f"{name} = {val!r} is invalid (finite, >= 0; > 0 for times)")
+        if not (isinstance(history, (int, np.integer)) and history >= 1):
+            raise ValueError(f"history = {history!r} must be an integer >= 1")
+        if reward_mode not in ("dense", "sparse"):
+            raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
+        self.space: ConditionSpace = resolve(preset, conditions)
+        base = rig or RigParams()
+        if sensor_lag_s:
+            base = base.with_(effects={"sensor_lag_s": float(sensor_lag_s)})
+        self.rig = base
+        self.control_period_s = float(control_period_s)
+        self.time_limit_s = float(time_limit_s)
+        self.decision_window_s = float(decision_window_s)
+        self.reversible = bool(reversible)
+        self.history = int(history)
+        self.observe_params = bool(observe_params)
+        self.weights = {"w_time": float(w_time), "w_stall": float(w_stall),
+                        "w_stick": float(w_stick)}
+        self.reward_mode = reward_mode
+        self.conditions: list[Conditions | None] = [None] * n
+
+        P, y0, d0 = _template(self.rig)
+        self.Y = np.zeros((n, y0.size))
+        self.P = np.zeros((n, P.size))
+        self.D = np.zeros((n, d0.size))
+        self.E = np.zeros((n, EP.NE))
+        self._b = 2 * self.rig.line.n_cells - 1
+        self._noise = np.zeros((n, 3))
+        self._noise_std = np.zeros((n, 3))
+        self._x_prev = np.zeros(n)
+        self._scales = np.array([self.rig.cylinder.stroke_m, VELOCITY_SCALE_M_S,
+                                 PRESSURE_SCALE_PA, self.time_limit_s])
+        self._extra = np.zeros((n, len(PARAM_OBSERVATION) if observe_params else 0))
+        nobs = self.history * EP.NF + (len(PARAM_OBSERVATION) if self.observe_params else 0)
+        self._obs = np.zeros((n, nobs), dtype=np.float32)
+        self._hist = np.zeros((n, self.history, EP.NF))
+        self._single_obs_space = spaces.Box(-OBS_BOUND, OBS_BOUND, shape=(nobs,),
+                                            dtype=np.float32)
+        self._rewards = np.zeros(n)
+        self._status = np.zeros(n, dtype=np.int64)
+
+    # -- describing ------------------------------------------------------------------------
+    @property
+    def observation_names(self) -> list[str]:
+        """Name of every observation element (``name[-k]`` = k samples ago)."""
+        names = [f"{f.name}[{k - self.history + 1}]" if self.history > 1 else f.name
+                 for k in range(self.history) for f in OBSERVATION]
+        if self.observe_params:
+            names += [f.name for f in PARAM_OBSERVATION]
+        return names
+
+    def observation_layout(self) -> dict[str, Any]:
+        """Everything a saved model needs to check that it sees the same observation."""
+        feats = [{"name": f.name, "unit": f.unit,
+                  "scale": (self.rig.cylinder.stroke_m if f.name == "position" else
+                            self.time_limit_s if f.name == "time" else f.scale),
+                  "offset": f.offset, "description": f.description} for f in OBSERVATION]
+        params = [{"name": f.name, "unit": f.unit, "scale": f.scale, "description": f.description}
+                  for f in PARAM_OBSERVATION] if self.observe_params else []
+        return {"history": self.history, "features": feats, "param_features": params,
+                "size": int(self._obs.shape[1]), "control_period_s": self.control_period_s}
+
+    # -- episodes --------------------------------------------------------------------------
+    def _start(self, i: int, cond: Conditions) -> None:
+        """Start episode ``i`` under ``cond``: plant at the extend command, bookkeeping zeroed."""
+        params = cond.rig(self.rig)
+        P, y0, d0 = _template(params)
+        self.P[i], self.Y[i], self.D[i] = P, y0, d0
+        set_supply_dip(self.P[i], *cond.dip)
+        t_conv, e_conv = conventional_figures(params, cond.dip)
+        K.command(self.D[i], self.P[i], 1.0)
+        e = self.E[i]
+        e[:] = 0.0
+        e[EP.E_REV] = float(self.reversible)
+        e[EP.E_T_CONV], e[EP.E_E_CONV] = t_conv, e_conv
+        e[EP.E_T_LIMIT] = self.time_limit_s
+        e[EP.E_WINDOW] = self.decision_window_s
+        e[EP.E_W_TIME] = self.weights["w_time"]
+        e[EP.E_W_STALL] = self.weights["w_stall"]
+        e[EP.E_W_STICK] = self.weights["w_stick"]
+        e[EP.E_T_CUT] = -1.0
+        e[EP.E_DENSE] = 1.0 if self.reward_mode == "dense" else 0.0
+        e[EP.E_PERIOD] = self.control_period_s
+        self.conditions[i] = cond
+        self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
+                              cond.pressure_noise_pa)
+        if self.observe_params:
+            self._extra[i] = (cond.load_mass_kg / 30.0, cond.friction_scale,
+                              float(self.P[i, L.P_DELAY]) / 0.4)
+        self._status[i] = 0
+
+    def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
+        """Sense episodes ``rows`` (with noise) and write their observations."""
+        if self._noise_std[rows].any():
+            self._noise[rows] = rng.standard_normal((rows.size, 3)) * self._noise_std[rows]
+        EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
+                   fresh, self._hist, self._extra, OBS_BOUND, self._obs)
+
+    def _check_status(self) -> None:
+        bad = np.flatnonzero(self._status)
+        if bad.size:
+            i = int(bad[0])
+            plant = Plant(self.conditions[i].rig(self.rig))
+            plant.P[:], plant.y[:], plant.d[:] = self.P[i], self.Y[i], self.D[i]
+            try:
+                plant._check(int(self._status[i]))
+            except SimulationError as exc:
+                raise SimulationError(f"episode {i} under {self.conditions[i]}: {exc}") from None
+
+    def _step_info(self, i: int) -> dict[str, Any]:
+        y, d = self.Y[i], self.D[i]
+        pd, pe, _, _ = K.chamber_pressures(y, self.P[i], self._b)
+        return {"time_s": float(d[L.D_T]), "position_m": float(y[self._b + L.Y_X]),
+                "p_drive_pa": float(pd), "p_exhaust_pa": float(pe),
+                "supply_cut": bool(self.E[i, EP.E_CUT] > 0.0)}
+
+    def _final_info(self, i: int) -> dict[str, Any]:
+        """The episode's figures (``info`` of its last step)."""
+        e, d = self.E[i], self.D[i]
+        completed = bool(e[EP.E_COMPLETED] > 0.0)
+        t_conv = float(e[EP.E_T_CONV])
+        stroke = float(d[L.D_T_ARRIVE]) if completed else None
+        ew, ec = float(e[EP.E_E_WASTED]), float(e[EP.E_E_CONV])
+        return {
+            "saving_ratio": float(saving_ratio(ec, ew)),
+            "energy_wasted_j": ew,
+            "energy_conventional_j": ec,
+            "air_mass_kg": float(self.Y[i, self._b + L.Y_MIN]),
+            "stroke_time_s": stroke,
+            "conventional_stroke_time_s": t_conv,
+            "time_increase": (stroke / t_conv - 1.0) if completed else None,
+            "cutoff_time_s": float(e[EP.E_T_CUT]) if e[EP.E_T_CUT] >= 0.0 else None,
+            "stalled": bool(e[EP.E_STALLED] > 0.0),
+            "stick_slip_events": int(d[L.D_STICKS]),
+            "completed": completed,
+            "objective": float(e[EP.E_OBJ]),
+        }
+
+
+_DEFAULTS = dict(preset="thesis-2.5bar", conditions=None, rig=None, control_period_s=0.005,
+                 time_limit_s=4.0, decision_window_s=0.02, reversible=False, history=1,
+                 observe_params=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
+                 reward_mode="dense")
+
+
+class CutOffEnv(_CutOffCore, gym.Env):
+    """One cut-off episode per reset (see the module docstring for the task).
+
+    Parameters (all keyword): ``preset`` (``"thesis-1.5bar"``, ``"thesis-2.5bar"``,
+    ``"randomized"``, a :class:`ConditionSpace` or fixed :class:`Conditions`); ``conditions``
+    (overrides of the space's fields, numbers or ``(low, high)``); ``rig`` (base
+    :class:`RigParams`, default the thesis rig); ``control_period_s`` (5 ms); ``time_limit_s``
+    (4 s); ``decision_window_s`` after arrival (20 ms); ``reversible``; ``history`` (samples per
+    observation); ``observe_params``; ``sensor_lag_s`` (transducer lag); the objective weights
+    ``w_time`` (0.3), ``w_stall`` (2), ``w_stick`` (0.5); ``reward_mode`` (``"dense"``/``"sparse"``);
+    ``render_mode`` (``"rgb_array"``).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(self, render_mode: str | None = None, **config: Any):
+        unknown = set(config) - set(_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown CutOffEnv option(s) {sorted(unknown)}; "
+                             f"known: {sorted(_DEFAULTS)}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode = {render_mode!r}: only 'rgb_array' is supported")
+        self.config = {**_DEFAULTS, **config}
+        self._configure(1, **self.config)
+        self.render_mode = render_mode
+        self.action_space = spaces.Discrete(2)
+        self.observation_space = self._single_obs_space
+        self._y, self._p, self._d, self._e = self.Y[0], self.P[0], self.D[0], self.E[0]
+        self._all = np.zeros(1, dtype=np.int64)
+        self._trace: list[np.ndarray] = []
+
+    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
+        super().reset(seed=seed)
+        cond = (options or {}).get("conditions")
+        if cond is None:
+            cond = self.space.sample(self.np_random)
+        elif isinstance(cond, Mapping):
+            cond = Conditions(**cond)
+        self._start(0, cond)
+        self._observe(self._all, self.np_random, fresh=True)
+        self._trace = []
+        self._record()
+        info = self._step_info(0)
+        info["conditions"] = cond.to_dict()
+        return self._obs[0].copy(), info
+
+    def step(self, action):
+        if self._e[EP.E_T_LIMIT] == 0.0:
+            raise RuntimeError("call reset() before step()")
+        if self._e[EP.E_DONE] != 0.0:
+            raise RuntimeError("the episode has ended: call reset()")
+        r, st = EP.step_one(self._y, self._p, self._d, self._e, int(action))
+        if st:
+            self._status[0] = st
+            self._check_status()
+        self._observe(self._all, self.np_random, fresh=False)
+        self._record()
+        done = self._e[EP.E_DONE]
+        info = self._step_info(0)
+        if done:
+            info.update(self._final_info(0))
+        return self._obs[0].copy(), float(r), bool(done == 1.0), bool(done == 2.0), info
+
+    # -- rendering ---------------------------------------------------------------------------
+    def _record(self) -> None:
+        if self.render_mode == "rgb_array":
+            row = np.zeros(L.NR)
+            K.record_row(self._y, self._p, self._d, row, 0.0)
+            self._trace.append(row)
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            gym.logger.warn("render() needs render_mode='rgb_array'")
+            return None
+        from .render import episode_figure_rgb
+        return episode_figure_rgb(np.array(self._trace), self.conditions[0],
+                                  self.rig.cylinder.stroke_m, self.P[0, L.P_PA])
+
+
+class CutOffVectorEnv(_CutOffCore, VectorEnv):
+    """``num_envs`` cut-off episodes stepped together in one parallel jitted call
+    (:func:`pneugym.envs.episode.step_batch`). Same options as :class:`CutOffEnv`, plus
+    ``max_episode_steps``. Sub-environment ``i`` draws its conditions from its own generator
+    (seeded ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` does), so it reproduces the
+    episodes of a ``CutOffEnv`` reset with ``seed + i``; sensor noise comes from one shared
+    generator. Autoreset is *same-step*: a finished sub-environment is reset at once, its last
+    observation and info are in ``infos["final_obs"]`` and ``infos["final_info"]``.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, **config: Any):
+        unknown = set(config) - set(_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown CutOffVectorEnv option(s) {sorted(unknown)}")
+        if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
+            raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        self.config = {**_DEFAULTS, **config}
+        self.num_envs = int(num_envs)
+        self._configure(self.num_envs, **self.config)
+        self.max_episode_steps = max_episode_steps
+        self.render_mode = None
+        self.single_action_space = spaces.Discrete(2)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.single_observation_space = self._single_obs_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._rngs: list[np.random.Generator] = []
+        self._steps = np.zeros(self.num_envs, dtype=np.int64)
+        self._info = np.zeros((self.num_envs, 4))
+        self._all = np.arange(self.num_envs)
+
+    def reset(self, *, seed: int | list[int] | None = None,
+              options: Mapping[str, Any] | None = None):
+        super().reset(seed=seed if isinstance(seed, (int, type(None))) else seed[0])
+        n = self.num_envs
+        if seed is None:
+            seeds: list[int | None] = [None] * n
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != n:
+                raise ValueError(f"seed list has {len(seeds)} entries for {n} environments")
+        self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        conds = (options or {}).get("conditions")
+        if conds is not None and len(conds) != n:
+            raise ValueError(f"options['conditions'] needs one entry per environment ({n})")
+        for i in range(n):
+            c = conds[i] if conds is not None else None
+            if isinstance(c, Mapping):
+                c = Conditions(**c)
+            self._start(i, c if c is not None else self.space.sample(self._rngs[i]))
+        self._steps[:] = 0
+        self._observe(self._all, self.np_random, fresh=True)
+        infos = self._batch_info()
+        infos["conditions"] = {k: np.array([c.to_dict()[k] for c in self.conditions])
+                               for k in Conditions.__dataclass_fields__}
+        return self._obs.copy(), infos
+
+    def step(self, actions):
+        if not self._rngs:
+            raise RuntimeError("call reset() before step()")
+        acts = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
+        EP.step_batch(self.Y, self.P, self.D, self.E, acts, self._rewards, self._status)
+        self._check_status()
+        self._steps += 1
+        self._observe(self._all, self.np_random, fresh=False)
+        done = self.E[:, EP.E_DONE]
+        terminated = done == 1.0
+        truncated = done == 2.0
+        if self.max_episode_steps is not None:
+            truncated |= (self._steps >= self.max_episode_steps) & ~terminated
+        rewards = self._rewards.copy()
+        infos = self._batch_info()
+        ended = np.flatnonzero(terminated | truncated)
+        if ended.size:
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_info: dict[str, Any] = {}
+            for i in ended:
+                final_obs[i] = self._obs[i].copy()
+                fi = {**self._step_info(i), **self._final_info(i)}
+                final_info = self._add_info(final_info, fi, int(i))
+                self._start(int(i), self.space.sample(self._rngs[i]))
+                self._steps[i] = 0
+            self._observe(ended, self.np_random, fresh=True)
+            infos["final_obs"] = final_obs
+            infos["_final_obs"] = terminated | truncated
+            infos["final_info"] = final_info
+            infos["_final_info"] = terminated | truncated
+        return self._obs.copy(), rewards, terminated, truncated, infos
+
+    def _batch_info(self) -> dict[str, Any]:
+        EP.state_info(self.Y, self.P, self.D, self._info)
+        mask = np.ones(self.num_envs, dtype=bool)
+        info = {"time_s": self._info[:, 0].copy(), "position_m": self._info[:, 1].copy(),
+                "p_drive_pa": self._info[:, 2].copy(), "p_exhaust_pa": self._info[:, 3].copy(),
+                "supply_cut": self.E[:, EP.E_CUT] > 0.0}
+        for k in list(info):
+            info["_" + k] = mask
+        return info
+
+
+def make_vec(num_envs: int = 1, max_episode_steps: int | None = None,
+             **config: Any) -> CutOffVectorEnv:
+    """The ``vector_entry_point`` of ``pneugym/CutOff-v0``."""
+    return CutOffVectorEnv(num_envs=num_envs, max_episode_steps=max_episode_steps, **config)
