@@ -59,7 +59,8 @@ class Policy:
 def run_first_episodes(env, policy: Policy, conditions: Sequence[Any], seed: int
                        ) -> dict[str, np.ndarray]:
     """Run the first episode of every sub-environment of a vector env under ``conditions`` and
-    return the final-info arrays (one entry per sub-environment)."""
+    return the final-info arrays (one entry per sub-environment). Build the env with
+    ``autoreset=False`` so that finished sub-environments idle instead of starting new episodes."""
     n = env.num_envs
     obs, _ = env.reset(seed=seed, options={"conditions": list(conditions)})
     policy.begin_episodes(list(conditions))

@@ -105,7 +105,7 @@ def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] 
     from pneugym.envs.cutoff import CutOffVectorEnv
 
     ks = np.asarray(ks, dtype=float)
-    env = CutOffVectorEnv(num_envs=ks.size, **dict(env_config or {}))
+    env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **dict(env_config or {}))
     pol = GasLawPolicy(env.observation_layout(), k=ks, rig=env.rig, **policy_kwargs)
     cond = Conditions(supply_pressure_gauge_pa=supply_bar * 1e5)
     return run_first_episodes(env, pol, [cond] * ks.size, seed)["objective"]

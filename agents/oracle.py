@@ -63,41 +63,60 @@ class OraclePolicy(TimedCutPolicy):
             self._base_rig = CutOffVectorEnv(num_envs=1, **self.env_config).rig
         return self._base_rig
 
-    def _returns(self, cond, t_cuts: np.ndarray) -> np.ndarray:
+    def _returns(self, conds: Sequence[Any], t_cuts: np.ndarray) -> np.ndarray:
+        """Return of each (conditions, cut-off time) pair, all in one batched run."""
         from pneugym.envs.cutoff import CutOffVectorEnv
 
-        env = CutOffVectorEnv(num_envs=t_cuts.size, **self.env_config)
+        env = CutOffVectorEnv(num_envs=t_cuts.size, autoreset=False, **self.env_config)
         pol = TimedCutPolicy(env.observation_layout(), t_cuts)
-        return run_first_episodes(env, pol, [cond] * t_cuts.size, self.seed)["objective"]
+        return run_first_episodes(env, pol, list(conds), self.seed)["objective"]
 
     def plan(self, cond) -> tuple[float, float]:
         """``(t_cut_s, return)`` of the best cut-off for conditions ``cond`` (``inf`` = never)."""
+        return self.plan_many([cond])[0]
+
+    def plan_many(self, conditions: Sequence[Any]) -> list[tuple[float, float]]:
+        """:meth:`plan` for many conditions, searched together (two batched runs)."""
         from pneugym.envs import conventional_figures
 
-        key = cond.physics_key()
-        if key in self._cache:
-            return self._cache[key]
-        quiet = type(cond)(**{**cond.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
-        t_conv, _ = conventional_figures(quiet.rig(self._rig()), quiet.dip)
-        window = float(self.env_config.get("decision_window_s", 0.02))
-        last = int(math.ceil((t_conv + window) / self.period)) + 1
-        steps = np.arange(0, last + 1, self.coarse)
-        t = np.append(steps * self.period, math.inf)
-        j = self._returns(quiet, t)
-        best = np.argsort(-j)[:3]
-        fine = set()
-        for i in best:
-            if math.isfinite(t[i]):
-                k = int(round(t[i] / self.period))
-                fine.update(range(max(0, k - self.coarse + 1), k + self.coarse))
-        fine -= set(int(s) for s in steps)
-        if fine:
-            tf = np.array(sorted(fine), dtype=float) * self.period
-            t = np.concatenate([t, tf])
-            j = np.concatenate([j, self._returns(quiet, tf)])
-        i = int(np.argmax(j))
-        self._cache[key] = (float(t[i]), float(j[i]))
-        return self._cache[key]
+        todo = {}
+        for c in conditions:
+            if c.physics_key() not in self._cache:
+                todo.setdefault(c.physics_key(), type(c)(
+                    **{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0}))
+        if todo:
+            window = float(self.env_config.get("decision_window_s", 0.02))
+            cands: dict[tuple, list[float]] = {}
+            for key, c in todo.items():
+                t_conv, _ = conventional_figures(c.rig(self._rig()), c.dip)
+                last = int(math.ceil((t_conv + window) / self.period)) + 1
+                cands[key] = [k * self.period for k in range(0, last + 1, self.coarse)] + [math.inf]
+            scores = self._score(todo, cands)
+            fine: dict[tuple, list[float]] = {}
+            for key, js in scores.items():
+                tried = {round(t / self.period) for t in js if math.isfinite(t)}
+                steps = set()
+                for t in sorted(js, key=js.get, reverse=True)[:3]:
+                    if math.isfinite(t):
+                        k = int(round(t / self.period))
+                        steps.update(range(max(0, k - self.coarse + 1), k + self.coarse))
+                fine[key] = [k * self.period for k in sorted(steps - tried)]
+            for key, js in self._score(todo, fine).items():
+                scores[key].update(js)
+            for key, js in scores.items():
+                t = max(js, key=js.get)
+                self._cache[key] = (float(t), float(js[t]))
+        return [self._cache[c.physics_key()] for c in conditions]
+
+    def _score(self, conds: dict, cands: dict) -> dict[tuple, dict[float, float]]:
+        pairs = [(key, t) for key, ts in cands.items() for t in ts]
+        out: dict[tuple, dict[float, float]] = {key: {} for key in cands}
+        if not pairs:
+            return out
+        j = self._returns([conds[k] for k, _ in pairs], np.array([t for _, t in pairs]))
+        for (key, t), v in zip(pairs, j):
+            out[key][t] = float(v)
+        return out
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:
-        self.t_cut_s = np.array([self.plan(c)[0] for c in conditions])
+        self.t_cut_s = np.array([t for t, _ in self.plan_many(conditions)])

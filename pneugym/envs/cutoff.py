@@ -88,6 +88,7 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
     Feature("friction_scale", "-", 1.0, "0", "factor on the nominal friction"),
     Feature("valve_delay", "s", 0.4, "0", "valve switching delay"),
 )
+_MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
 
@@ -312,6 +313,9 @@ class CutOffEnv(_CutOffCore, gym.Env):
         elif isinstance(cond, Mapping):
             cond = Conditions(**cond)
         self._start(0, cond)
+        self._steps = 0
+        spec_steps = self.spec.max_episode_steps if self.spec is not None else None
+        self._max_steps = spec_steps if spec_steps else np.inf
         self._observe(self._all, self.np_random, fresh=True)
         self._trace = []
         self._record()
@@ -328,6 +332,9 @@ class CutOffEnv(_CutOffCore, gym.Env):
         if st:
             self._status[0] = st
             self._check_status()
+        self._steps += 1
+        if self._steps >= self._max_steps and self._e[EP.E_DONE] == 0.0:
+            r += EP.truncate(self._y, self._p, self._d, self._e)  # the TimeLimit wrapper's step
         self._observe(self._all, self.np_random, fresh=False)
         self._record()
         done = self._e[EP.E_DONE]
@@ -359,12 +366,15 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
     (seeded ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` does), so it reproduces the
     episodes of a ``CutOffEnv`` reset with ``seed + i``; sensor noise comes from one shared
     generator. Autoreset is *same-step*: a finished sub-environment is reset at once, its last
-    observation and info are in ``infos["final_obs"]`` and ``infos["final_info"]``.
+    observation and info are in ``infos["final_obs"]`` and ``infos["final_info"]``. With
+    ``autoreset=False`` a finished sub-environment idles instead (not stepped, reward 0, its flags
+    stay set) until the next ``reset``: for evaluating a fixed set of episodes.
     """
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, **config: Any):
+    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None,
+                 autoreset: bool = True, **config: Any):
         unknown = set(config) - set(_DEFAULTS)
         if unknown:
             raise ValueError(f"unknown CutOffVectorEnv option(s) {sorted(unknown)}")
@@ -374,6 +384,9 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         self.num_envs = int(num_envs)
         self._configure(self.num_envs, **self.config)
         self.max_episode_steps = max_episode_steps
+        self.autoreset = bool(autoreset)
+        if not self.autoreset:
+            self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.DISABLED}
         self.render_mode = None
         self.single_action_space = spaces.Discrete(2)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -406,10 +419,11 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
                 c = Conditions(**c)
             self._start(i, c if c is not None else self.space.sample(self._rngs[i]))
         self._steps[:] = 0
+        self._idle = np.zeros(n, dtype=bool)
         self._observe(self._all, self.np_random, fresh=True)
         infos = self._batch_info()
-        infos["conditions"] = {k: np.array([c.to_dict()[k] for c in self.conditions])
-                               for k in Conditions.__dataclass_fields__}
+        infos["conditions"] = self._conditions_info()
+        infos["_conditions"] = np.ones(n, dtype=bool)
         return self._obs.copy(), infos
 
     def step(self, actions):
@@ -420,29 +434,65 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         self._check_status()
         self._steps += 1
         self._observe(self._all, self.np_random, fresh=False)
+        if self.max_episode_steps is not None:
+            for i in np.flatnonzero((self._steps >= self.max_episode_steps)
+                                    & (self.E[:, EP.E_DONE] == 0.0)):
+                self._rewards[i] += EP.truncate(self.Y[i], self.P[i], self.D[i], self.E[i])
         done = self.E[:, EP.E_DONE]
         terminated = done == 1.0
         truncated = done == 2.0
-        if self.max_episode_steps is not None:
-            truncated |= (self._steps >= self.max_episode_steps) & ~terminated
         rewards = self._rewards.copy()
-        infos = self._batch_info()
-        ended = np.flatnonzero(terminated | truncated)
+        ended = np.flatnonzero((terminated | truncated) & ~self._idle)
+        extra: dict[str, Any] = {}
         if ended.size:
             final_obs = np.full(self.num_envs, None, dtype=object)
-            final_info: dict[str, Any] = {}
+            finals = {}
             for i in ended:
                 final_obs[i] = self._obs[i].copy()
-                fi = {**self._step_info(i), **self._final_info(i)}
-                final_info = self._add_info(final_info, fi, int(i))
-                self._start(int(i), self.space.sample(self._rngs[i]))
-                self._steps[i] = 0
-            self._observe(ended, self.np_random, fresh=True)
-            infos["final_obs"] = final_obs
-            infos["_final_obs"] = terminated | truncated
-            infos["final_info"] = final_info
-            infos["_final_info"] = terminated | truncated
+                finals[int(i)] = {**self._step_info(i), **self._final_info(i)}
+                if self.autoreset:
+                    self._start(int(i), self.space.sample(self._rngs[i]))
+                    self._steps[i] = 0
+                else:
+                    self._idle[i] = True
+            mask = np.zeros(self.num_envs, dtype=bool)
+            mask[ended] = True
+            if self.autoreset:  # the step's info describes the new episodes, as in SyncVectorEnv
+                self._observe(ended, self.np_random, fresh=True)
+                extra["conditions"] = self._conditions_info()
+                extra["_conditions"] = mask
+            extra["final_obs"] = final_obs
+            extra["_final_obs"] = mask
+            extra["final_info"] = self._stack_final(finals, mask)
+            extra["_final_info"] = mask
+        infos = {**self._batch_info(), **extra}
         return self._obs.copy(), rewards, terminated, truncated, infos
+
+    def _stack_final(self, finals: dict[int, dict[str, Any]], mask: np.ndarray
+                     ) -> dict[str, Any]:
+        """Final infos as arrays; keys whose value may be None (never cut, not completed) are
+        object arrays in every step, so None never turns into NaN."""
+        first = next(iter(finals.values()))
+        out: dict[str, Any] = {}
+        for key in first:
+            vals = [f[key] for f in finals.values()]
+            if key in _MAYBE_NONE:
+                arr = np.full(self.num_envs, None, dtype=object)
+            elif isinstance(first[key], bool):
+                arr = np.zeros(self.num_envs, dtype=bool)
+            elif isinstance(first[key], int):
+                arr = np.zeros(self.num_envs, dtype=np.int64)
+            else:
+                arr = np.zeros(self.num_envs)
+            for i, v in zip(finals, vals):
+                arr[i] = v
+            out[key] = arr
+            out["_" + key] = mask
+        return out
+
+    def _conditions_info(self) -> dict[str, np.ndarray]:
+        return {k: np.array([getattr(c, k) for c in self.conditions])
+                for k in Conditions.__dataclass_fields__}
 
     def _batch_info(self) -> dict[str, Any]:
         EP.state_info(self.Y, self.P, self.D, self._info)
@@ -455,7 +505,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         return info
 
 
-def make_vec(num_envs: int = 1, max_episode_steps: int | None = None,
-             **config: Any) -> CutOffVectorEnv:
+def make_vec(num_envs: int = 1, max_episode_steps: int | None = None, **config: Any
+             ) -> CutOffVectorEnv:
     """The ``vector_entry_point`` of ``pneugym/CutOff-v0``."""
     return CutOffVectorEnv(num_envs=num_envs, max_episode_steps=max_episode_steps, **config)

@@ -86,6 +86,14 @@ def step_one(y, P, d, e, action):
         e[E_STALLED] = 1.0
     if done == 0.0 and t >= e[E_T_LIMIT] - 1e-9:
         done = 2.0
+    return _settle(y, P, d, e, done), STATUS_OK
+
+
+@njit(cache=True)
+def _settle(y, P, d, e, done):
+    """Update the objective, close the episode if ``done`` (1 terminated, 2 truncated) and
+    return the step's reward."""
+    arrived = d[D_T_ARRIVE] >= 0.0
     j = objective(y, P, d, e, done != 0.0, arrived)
     r = 0.0
     if e[E_DENSE] > 0.0:
@@ -98,7 +106,16 @@ def step_one(y, P, d, e, action):
         e[E_DONE] = done
         e[E_COMPLETED] = 1.0 if arrived else 0.0
         e[E_E_WASTED] = energy_wasted(y, P, d)
-    return r, STATUS_OK
+    return r
+
+
+@njit(cache=True)
+def truncate(y, P, d, e):
+    """End a running episode now as truncated (a step limit outside the plant's time limit);
+    returns the extra reward that makes the return equal the final objective."""
+    if e[E_DONE] != 0.0:
+        return 0.0
+    return _settle(y, P, d, e, 2.0)
 
 
 @njit(cache=True, parallel=True)

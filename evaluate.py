@@ -1,0 +1,320 @@
+"""Benchmark cut-off policies on the pneugym suites and write results.json, results.csv and plots.
+
+    python evaluate.py                                   # baselines, nominal + robustness suites
+    python evaluate.py --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
+        --suite robustness --episodes 3 --seed 1000000 --out results
+
+Suites (sensor noise 0.03 mm / 400 Pa in every episode):
+- ``nominal``: the thesis conditions, 1.5 and 2.5 bar gauge with 10 kg;
+- ``robustness``: load {5, 10, 15, 20, 30} kg x supply {1.5, 2, 2.5, 3, 4, 5} bar, plus
+  disturbance sets at 1.5 and 2.5 bar with 10 kg: random supply dips (10-30 %, 50-300 ms),
+  friction -30 % / +30 %, valve delay -20 % / +20 %.
+
+Every policy meets the same episodes (conditions and sensor noise from ``--seed``; keep evaluation
+seeds >= 1,000,000, the range this project never uses for training or calibration).
+``oracle_fraction = (return - conventional return) / (oracle return - conventional return)``
+on the suite's (or condition's) mean returns.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+import pneugym  # noqa: F401  (registers the environment)
+from agents import BASELINES, make_policy
+from agents.base import Policy, run_first_episodes
+from agents.registry import load_policy
+from pneugym.envs import Conditions, ConditionSpace
+from pneugym.envs.cutoff import CutOffVectorEnv
+from pneugym.provenance import provenance
+
+DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "oracle"]
+NOISE = {"position_noise_m": 3e-5, "pressure_noise_pa": 400.0}
+LOADS_KG = (5.0, 10.0, 15.0, 20.0, 30.0)
+SUPPLIES_BAR = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
+EVAL_SEED = 1_000_000
+
+
+def _fixed(bar: float, kg: float, **kw: Any) -> ConditionSpace:
+    return ConditionSpace(supply_pressure_gauge_pa=bar * 1e5, load_mass_kg=kg, **NOISE, **kw)
+
+
+def suite_cells(suite: str) -> list[tuple[str, ConditionSpace]]:
+    """The condition cells of a suite: ``(label, space to draw each episode's conditions from)``."""
+    if suite == "nominal":
+        return [(f"{b:g}bar-10kg", _fixed(b, 10.0)) for b in (1.5, 2.5)]
+    if suite == "robustness":
+        cells = [(f"{b:g}bar-{m:g}kg", _fixed(b, m)) for m in LOADS_KG for b in SUPPLIES_BAR]
+        for b in (1.5, 2.5):
+            cells += [
+                (f"{b:g}bar-dip", _fixed(b, 10.0, dip_probability=1.0, dip_depth=(0.1, 0.3),
+                                         dip_duration_s=(0.05, 0.3), dip_start_s=(0.0, 1.0))),
+                (f"{b:g}bar-friction-30%", _fixed(b, 10.0, friction_scale=0.7)),
+                (f"{b:g}bar-friction+30%", _fixed(b, 10.0, friction_scale=1.3)),
+                (f"{b:g}bar-valve-delay-20%", _fixed(b, 10.0, valve_delay_scale=0.8)),
+                (f"{b:g}bar-valve-delay+20%", _fixed(b, 10.0, valve_delay_scale=1.2)),
+            ]
+        return cells
+    raise ValueError(f"unknown suite {suite!r}; choose nominal, robustness or all")
+
+
+def suite_episodes(suite: str, episodes: int, seed: int) -> list[tuple[str, Conditions]]:
+    """``episodes`` draws per cell, each from its own seeded generator."""
+    out = []
+    for c, (label, space) in enumerate(suite_cells(suite)):
+        for k in range(episodes):
+            rng = np.random.default_rng([seed, c, k])
+            out.append((label, space.sample(rng)))
+    return out
+
+
+def run_policy(policy: Policy, conds: Sequence[Conditions], env_config: dict, seed: int
+               ) -> dict[str, np.ndarray]:
+    """Final figures of one episode per condition, all stepped as one batch."""
+    env = CutOffVectorEnv(num_envs=len(conds), autoreset=False, **env_config)
+    return run_first_episodes(env, policy, list(conds), seed)
+
+
+def _mean(v: Sequence[Any]) -> float | None:
+    vals = [float(x) for x in v if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.mean(vals)) if vals else None
+
+
+def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str, Any]:
+    """Suite (or condition) metrics of one policy's episode records."""
+    ret = _mean([r["objective"] for r in rec])
+    gap = oracle - conv
+    return {
+        "episodes": len(rec),
+        "saving_mean": _mean([r["saving_ratio"] for r in rec]),
+        "time_increase_mean": _mean([r["time_increase"] for r in rec]),
+        "stall_rate": _mean([r["stalled"] for r in rec]),
+        "stick_slip_rate": _mean([r["stick_slip_events"] > 0 for r in rec]),
+        "completion_rate": _mean([r["completed"] for r in rec]),
+        "return_mean": ret,
+        "oracle_fraction": (ret - conv) / gap if abs(gap) > 1e-12 else None,
+    }
+
+
+def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
+             env_config: dict | None = None) -> dict[str, Any]:
+    """Run every policy on every suite; returns the results.json structure."""
+    env_config = dict(env_config or {})
+    names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
+    probe = CutOffVectorEnv(num_envs=1, **env_config)
+    results: dict[str, Any] = {"suites": {}}
+    for suite in suites:
+        eps = suite_episodes(suite, episodes, seed)
+        conds = [c for _, c in eps]
+        records: dict[str, list[dict[str, Any]]] = {}
+        wall: dict[str, float] = {}
+        for spec in tqdm(names, desc=f"{suite} suite", unit="policy"):
+            name, pol = _policy(spec, probe, env_config)
+            t0 = time.perf_counter()
+            out = run_policy(pol, conds, env_config, seed)
+            wall[name] = time.perf_counter() - t0
+            records[name] = [
+                {"suite": suite, "policy": name, "condition": label, "episode": i,
+                 **{k: _py(v[i]) for k, v in out.items()}, **c.to_dict()}
+                for i, (label, c) in enumerate(eps)]
+        conv_ret = _mean([r["objective"] for r in records["conventional"]])
+        orc_ret = _mean([r["objective"] for r in records["oracle"]])
+        labels = list(dict.fromkeys(label for label, _ in eps))
+        pols = {}
+        for name, rec in records.items():
+            s = summarize(rec, conv_ret, orc_ret)
+            s["wall_time_s"] = wall[name]
+            s["per_condition"] = {}
+            for lab in labels:
+                sub = [r for r in rec if r["condition"] == lab]
+                cr = _mean([r["objective"] for r in records["conventional"] if r["condition"] == lab])
+                orr = _mean([r["objective"] for r in records["oracle"] if r["condition"] == lab])
+                s["per_condition"][lab] = summarize(sub, cr, orr)
+            pols[name] = s
+        results["suites"][suite] = {"policies": pols, "conditions": labels,
+                                    "episodes": [r for rec in records.values() for r in rec]}
+    results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
+                         "seed": seed, "env_config": {k: repr(v) if not isinstance(
+                             v, (int, float, str, bool, type(None))) else v
+                             for k, v in env_config.items()},
+                         "sensor_noise": NOISE}
+    results["seed"] = seed
+    prov = provenance()
+    results["versions"] = prov.pop("versions")
+    results["provenance"] = prov
+    return results
+
+
+def _policy(spec: str, env, env_config: dict) -> tuple[str, Policy]:
+    if "=" in spec:
+        name, path = spec.split("=", 1)
+        return name, load_policy(path, env)
+    if spec not in BASELINES:
+        raise SystemExit(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, "
+                         f"saved models are given as NAME=PATH")
+    return spec, make_policy(spec, env)
+
+
+def _py(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+# --------------------------------------------------------------------------------------------
+# output
+# --------------------------------------------------------------------------------------------
+def print_table(results: dict[str, Any]) -> None:
+    for suite, s in results["suites"].items():
+        n = next(iter(s["policies"].values()))["episodes"]
+        print(f"\n== {suite} suite ({n} episodes per policy)")
+        print(f"{'policy':<14}{'saving %':>9}{'time +%':>9}{'stall %':>8}{'stick %':>8}"
+              f"{'done %':>8}{'return':>9}{'oracle fr.':>11}")
+        for name, p in s["policies"].items():
+            def pct(v):
+                return f"{100 * v:.1f}" if v is not None else "-"
+            of = p["oracle_fraction"]
+            print(f"{name:<14}{pct(p['saving_mean']):>9}{pct(p['time_increase_mean']):>9}"
+                  f"{pct(p['stall_rate']):>8}{pct(p['stick_slip_rate']):>8}"
+                  f"{pct(p['completion_rate']):>8}{p['return_mean']:>9.3f}"
+                  f"{(f'{of:.3f}' if of is not None else '-'):>11}")
+    print("(oracle: privileged, knows each episode's conditions; oracle fraction = share of the "
+          "oracle's gain over conventional)")
+
+
+def write_outputs(results: dict[str, Any], out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / "results.json.tmp"
+    tmp.write_text(json.dumps(results, indent=1, allow_nan=False))
+    tmp.replace(out / "results.json")
+    rows = [r for s in results["suites"].values() for r in s["episodes"]]
+    if rows:
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        with open(out / "results.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=keys)
+            w.writeheader()
+            w.writerows(rows)
+    plot_results(results, out)
+
+
+def plot_results(results: dict[str, Any], out: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for suite, s in results["suites"].items():
+        fig, ax = plt.subplots(figsize=(6.5, 4.5))
+        for name in s["policies"]:
+            rec = [r for r in s["episodes"] if r["policy"] == name and r["completed"]]
+            x = [100 * r["time_increase"] for r in rec]
+            y = [100 * r["saving_ratio"] for r in rec]
+            pts = ax.scatter(x, y, s=10, alpha=0.35)
+            p = s["policies"][name]
+            if p["time_increase_mean"] is not None:
+                ax.scatter(100 * p["time_increase_mean"], 100 * p["saving_mean"], s=90,
+                           marker="*", color=pts.get_facecolor()[0], edgecolor="k",
+                           label=name)
+        ax.set_xlabel("stroke-time increase [%]")
+        ax.set_ylabel("energy saved (eq. 5.10) [%]")
+        ax.set_title(f"{suite} suite: episodes and means (stars)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.savefig(out / f"{suite}_saving_vs_time.png", dpi=120, bbox_inches="tight")
+        plt.close(fig)
+    rob = results["suites"].get("robustness")
+    if rob:
+        names = list(rob["policies"])
+        fig, axes = plt.subplots(2, len(names), figsize=(3.2 * len(names), 5.6), squeeze=False)
+        for j, name in enumerate(names):
+            pc = rob["policies"][name]["per_condition"]
+            for row, (key, title, vmin, vmax) in enumerate(
+                    (("saving_mean", "saving", 0.0, 1.0), ("oracle_fraction", "oracle fr.", -1, 1))):
+                grid = np.full((len(LOADS_KG), len(SUPPLIES_BAR)), np.nan)
+                for a, m in enumerate(LOADS_KG):
+                    for b, bar in enumerate(SUPPLIES_BAR):
+                        v = pc.get(f"{bar:g}bar-{m:g}kg", {}).get(key)
+                        grid[a, b] = np.nan if v is None else v
+                ax = axes[row, j]
+                im = ax.imshow(grid, origin="lower", vmin=vmin, vmax=vmax, cmap="viridis",
+                               aspect="auto")
+                ax.set_xticks(range(len(SUPPLIES_BAR)), [f"{b:g}" for b in SUPPLIES_BAR])
+                ax.set_yticks(range(len(LOADS_KG)), [f"{m:g}" for m in LOADS_KG])
+                ax.set_title(f"{name}: {title}", fontsize=9)
+                if j == 0:
+                    ax.set_ylabel("load [kg]")
+                if row == 1:
+                    ax.set_xlabel("supply [bar g]")
+                fig.colorbar(im, ax=ax, fraction=0.046)
+        fig.tight_layout()
+        fig.savefig(out / "robustness_heatmaps.png", dpi=110)
+        plt.close(fig)
+    plot_examples(results, out)
+
+
+def plot_examples(results: dict[str, Any], out: Path) -> None:
+    """Position and driving pressure of one nominal 2.5 bar episode under each baseline."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pneugym.envs.cutoff import CutOffEnv
+    from pneugym.physics import layout as L
+
+    names = [n for n in results["config"]["policies"] if n in BASELINES]
+    fig, ax = plt.subplots(2, 1, figsize=(6.5, 5), sharex=True)
+    cond = Conditions(supply_pressure_gauge_pa=2.5e5)
+    for name in names:
+        env = CutOffEnv(render_mode="rgb_array")
+        pol = make_policy(name, env)
+        obs, info = env.reset(seed=EVAL_SEED, options={"conditions": cond})
+        pol.begin_episodes([cond])
+        done = False
+        while not done:
+            a, _ = pol.predict(obs)
+            obs, _, te, tr, info = env.step(a)
+            done = te or tr
+        tr_ = np.array(env._trace)
+        ax[0].plot(tr_[:, L.R_T], tr_[:, L.R_X] * 1e3, label=f"{name} ({100 * info['saving_ratio']:.0f} %)")
+        ax[1].plot(tr_[:, L.R_T], (tr_[:, L.R_PD] - 101325.0) / 1e5, label=name)
+    ax[0].set_ylabel("position [mm]")
+    ax[1].set_ylabel("driving pressure [bar g]")
+    ax[1].set_xlabel("time since the extend command [s]")
+    ax[0].set_title("one nominal episode (2.5 bar, 10 kg) per policy; energy saved in brackets",
+                    fontsize=9)
+    for a in ax:
+        a.grid(alpha=0.3)
+    ax[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "example_trajectories.png", dpi=120)
+    plt.close(fig)
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policies", nargs="+", default=DEFAULT_POLICIES,
+                    help="baseline names and/or NAME=PATH of saved models")
+    ap.add_argument("--suite", default="all", choices=["nominal", "robustness", "all"])
+    ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
+    ap.add_argument("--seed", type=int, default=EVAL_SEED)
+    ap.add_argument("--out", default="results")
+    args = ap.parse_args(argv)
+    if args.episodes < 1:
+        ap.error("--episodes must be >= 1")
+    suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
+    results = evaluate(args.policies, suites, args.episodes, args.seed)
+    print_table(results)
+    write_outputs(results, Path(args.out))
+    print(f"\nwrote {args.out}/results.json, results.csv and plots")
+    return results
+
+
+if __name__ == "__main__":
+    main()
