@@ -1,0 +1,96 @@
+"""evaluate.py: suites, the results.json schema the issue fixes, oracle_fraction, outputs."""
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import evaluate as ev  # noqa: E402
+
+KEYS = {"episodes", "saving_mean", "time_increase_mean", "stall_rate", "stick_slip_rate",
+        "completion_rate", "oracle_fraction"}
+
+
+@pytest.fixture(scope="module")
+def nominal(tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval")
+    res = ev.main(["--suite", "nominal", "--episodes", "1", "--out", str(out)])
+    return res, out
+
+
+def test_suites_cover_the_issue_grid():
+    rob = dict(ev.suite_cells("robustness"))
+    for m in (5, 10, 15, 20, 30):
+        for b in (1.5, 2, 2.5, 3, 4, 5):
+            assert f"{b:g}bar-{m:g}kg" in rob
+    assert any("dip" in k for k in rob) and any("friction" in k for k in rob)
+    assert any("valve-delay" in k for k in rob)
+    assert [lab for lab, _ in ev.suite_cells("nominal")] == ["1.5bar-10kg", "2.5bar-10kg"]
+    with pytest.raises(ValueError, match="unknown suite"):
+        ev.suite_cells("nope")
+
+
+def test_episodes_are_seeded_and_distinct():
+    a = ev.suite_episodes("robustness", 2, 1_000_000)
+    b = ev.suite_episodes("robustness", 2, 1_000_000)
+    c = ev.suite_episodes("robustness", 2, 1_000_001)
+    assert a == b
+    dips_a = [cond.dip for lab, cond in a if "dip" in lab]
+    dips_c = [cond.dip for lab, cond in c if "dip" in lab]
+    assert dips_a != dips_c and all(cond.dip_depth >= 0.1 for cond in [x[1] for x in a
+                                                                        if "dip" in x[0]])
+
+
+def test_results_schema_and_reference_fractions(nominal):
+    res, out = nominal
+    assert set(res) >= {"suites", "config", "versions", "seed"}
+    pols = res["suites"]["nominal"]["policies"]
+    assert set(pols) == {"conventional", "endstroke", "gaslaw", "oracle"}
+    for p in pols.values():
+        assert KEYS <= set(p)
+        assert p["episodes"] == 2
+    assert pols["conventional"]["oracle_fraction"] == pytest.approx(0.0)
+    assert pols["oracle"]["oracle_fraction"] == pytest.approx(1.0)
+    assert pols["conventional"]["saving_mean"] == pytest.approx(0.0, abs=1e-9)
+    # the oracle is the best latched single cut-off: no baseline beats it
+    for name in ("endstroke", "gaslaw"):
+        assert pols[name]["return_mean"] <= pols["oracle"]["return_mean"] + 1e-12
+        assert pols[name]["oracle_fraction"] <= 1.0 + 1e-9
+    # the end-stroke cut saves energy without slowing the stroke (thesis 5.7)
+    assert 0.3 < pols["endstroke"]["saving_mean"] < 0.6
+    assert abs(pols["endstroke"]["time_increase_mean"]) < 0.01
+
+
+def test_outputs_written(nominal):
+    res, out = nominal
+    data = json.loads((out / "results.json").read_text())
+    assert data["suites"]["nominal"]["policies"]["oracle"]["oracle_fraction"] == pytest.approx(1)
+    eps = data["suites"]["nominal"]["episodes"]
+    assert len(eps) == 8 and {"policy", "condition", "saving_ratio", "objective"} <= set(eps[0])
+    csv_lines = (out / "results.csv").read_text().splitlines()
+    assert len(csv_lines) == 9
+    for png in ("nominal_saving_vs_time.png", "example_trajectories.png"):
+        assert (out / png).stat().st_size > 1000
+
+
+def test_per_condition_fractions(nominal):
+    res, _ = nominal
+    pc = res["suites"]["nominal"]["policies"]["gaslaw"]["per_condition"]
+    assert set(pc) == {"1.5bar-10kg", "2.5bar-10kg"}
+    for v in pc.values():
+        assert v["episodes"] == 1 and (v["oracle_fraction"] is None
+                                       or math.isfinite(v["oracle_fraction"]))
+
+
+def test_unknown_policy_and_bad_path_are_refused(tmp_path):
+    with pytest.raises(SystemExit, match="unknown policy"):
+        ev.main(["--policies", "nope", "--suite", "nominal", "--out", str(tmp_path)])
+    with pytest.raises(FileNotFoundError, match="no saved model"):
+        ev.main(["--policies", f"x={tmp_path / 'missing.zip'}", "--suite", "nominal",
+                 "--out", str(tmp_path)])
+    bad = tmp_path / "bad.zip"
+    bad.write_text("not a zip")
+    with pytest.raises(ValueError, match="not a stable-baselines3 model"):
+        ev.main(["--policies", f"x={bad}", "--suite", "nominal", "--out", str(tmp_path)])
