@@ -29,7 +29,7 @@ def test_conditions_reject_bad_fields_by_name(field, value):
 
 
 @pytest.mark.xfail(strict=True, raises=TypeError, reason=(
-    "BUG conditions.py:42-52: Conditions.__post_init__ evaluates the comparisons (e.g. "
+    "BUG envs/conditions.py Conditions.__post_init__ evaluates the comparisons (e.g. "
     "'10' >= 0) before its isinstance check, so a non-number raises TypeError, not the "
     "ValueError naming the field"))
 def test_conditions_reject_non_numbers_with_value_error():

@@ -1,0 +1,293 @@
+"""Tests of the batched :class:`pneugym.envs.cutoff.CutOffVectorEnv` (the ``vector_entry_point``
+of ``pneugym/CutOff-v0``) and of its stable-baselines3 adapter
+:class:`pneugym.envs.sb3.CutOffVecEnv`."""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numba
+import numpy as np
+import pytest
+
+import pneugym  # noqa: F401
+from agents import EndStrokePolicy
+from agents.base import run_first_episodes
+from pneugym.envs import ENV_ID, Conditions
+from pneugym.envs.cutoff import CutOffEnv, CutOffVectorEnv
+from pneugym.envs.sb3 import CutOffVecEnv
+
+FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg",
+              "stroke_time_s", "conventional_stroke_time_s", "time_increase", "cutoff_time_s",
+              "stalled", "stick_slip_events", "completed", "objective"}
+QUIET = {"position_noise_m": 0.0, "pressure_noise_pa": 0.0}
+
+
+@pytest.fixture(autouse=True)
+def one_numba_thread():
+    """Step the batches on one numba thread: on a loaded 2-core machine, the parallel kernel's
+    barrier makes 2 threads several times slower. ``prange`` results do not depend on it;
+    :func:`test_sub_env_i_reproduces_single_env_seeded_s_plus_i` runs on all threads."""
+    prev = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(prev)
+
+
+def make_vec(n: int, **config) -> CutOffVectorEnv:
+    return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", **config)
+
+
+def test_make_vec_returns_the_batched_env():
+    env = make_vec(3, preset="randomized", history=2)
+    assert type(env) is CutOffVectorEnv
+    assert env.num_envs == 3 and env.max_episode_steps == 800
+    assert env.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    assert env.observation_space.shape == (3, 14) and env.observation_space.dtype == np.float32
+    assert env.single_action_space == gym.spaces.Discrete(2)
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert set(info["conditions"]) == set(Conditions.__dataclass_fields__)
+    obs, rew, term, trunc, info = env.step(np.zeros(3, dtype=np.int64))
+    assert env.observation_space.contains(obs)
+    assert rew.shape == term.shape == trunc.shape == (3,)
+    assert term.dtype == bool and trunc.dtype == bool
+    for k in ("time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut"):
+        assert info[k].shape == (3,) and info["_" + k].all()
+    with pytest.raises(ValueError, match="num_envs"):
+        CutOffVectorEnv(num_envs=0)
+    with pytest.raises(ValueError, match="histroy"):
+        CutOffVectorEnv(num_envs=2, histroy=2)
+    with pytest.raises(ValueError, match="seed list"):
+        CutOffVectorEnv(num_envs=2).reset(seed=[1, 2, 3])
+    with pytest.raises(ValueError, match="conditions"):
+        CutOffVectorEnv(num_envs=2).reset(options={"conditions": [Conditions()]})
+    with pytest.raises(RuntimeError, match="reset"):
+        CutOffVectorEnv(num_envs=2).step([0, 0])
+
+
+def test_sub_env_i_reproduces_single_env_seeded_s_plus_i():
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)  # the parallel path, all threads
+    n, seed = 3, 40
+    # conditions (noise included) come from the sub-environment's own generator
+    vec = CutOffVectorEnv(num_envs=n, preset="randomized")
+    _, info = vec.reset(seed=seed)
+    for i in range(n):
+        c = CutOffEnv(preset="randomized").reset(seed=seed + i)[1]["conditions"]
+        assert {k: info["conditions"][k][i] for k in c} == c
+    # noise-free: the whole trajectory (observations, rewards) is the single environment's
+    vec = CutOffVectorEnv(num_envs=n, preset="randomized", conditions=QUIET, time_limit_s=0.9)
+    singles = [CutOffEnv(preset="randomized", conditions=QUIET, time_limit_s=0.9)
+               for _ in range(n)]
+    obs, _ = vec.reset(seed=seed)
+    for i, e in enumerate(singles):
+        np.testing.assert_array_equal(obs[i], e.reset(seed=seed + i)[0])
+    done = np.zeros(n, dtype=bool)
+    for k in range(200):
+        a = np.array([int(k >= 100 + 20 * i) for i in range(n)])
+        obs, rew, term, trunc, info = vec.step(a)
+        for i, e in enumerate(singles):
+            if done[i]:
+                continue
+            o, r, t1, t2, inf = e.step(a[i])
+            assert rew[i] == r and term[i] == t1 and trunc[i] == t2
+            if t1 or t2:
+                np.testing.assert_array_equal(info["final_obs"][i], o)
+                assert {k: info["final_info"][k][i] for k in FINAL_KEYS} == \
+                    {k: inf[k] for k in FINAL_KEYS}
+                done[i] = True
+            else:
+                np.testing.assert_array_equal(obs[i], o)
+                assert info["position_m"][i] == inf["position_m"]
+        if done.all():
+            break
+    assert done.all()
+
+
+def test_same_step_autoreset_with_final_masks():
+    vec = CutOffVectorEnv(num_envs=2)
+    vec.reset(seed=0)
+    for k in range(100):
+        obs, rew, term, trunc, info = vec.step(np.array([1, 0]))  # env 0 stalls at once
+        if term.any():
+            break
+    assert term.tolist() == [True, False] and not trunc.any()
+    assert info["_final_obs"].tolist() == [True, False]
+    assert info["_final_info"].tolist() == [True, False]
+    assert info["final_obs"][1] is None
+    fo = info["final_obs"][0]
+    assert fo.dtype == np.float32 and fo[6] == 1.0 and fo[5] > 0.0  # cut, time > 0
+    # the observation is already the next episode's first one
+    assert obs[0][5] == 0.0 and obs[0][6] == 0.0 and obs[0][0] == 0.0
+    fi = info["final_info"]
+    assert fi["stalled"][0] and not fi["completed"][0] and fi["cutoff_time_s"][0] == 0.0
+    for key in FINAL_KEYS:
+        assert fi["_" + key].tolist() == [True, False]
+    # the next step goes on from the reset state
+    obs, _, term, trunc, info = vec.step(np.array([0, 0]))
+    assert info["time_s"][0] == pytest.approx(0.005) and info["time_s"][1] > 0.1
+    assert not info["supply_cut"][0]
+
+
+def test_vector_returns_equal_objectives_over_many_autoresets():
+    """Random latched policies on a randomized batch: every episode's dense return is its
+    final objective, through same-step autoresets."""
+    n = 8
+    vec = CutOffVectorEnv(num_envs=n, preset="randomized")
+    vec.reset(seed=5)
+    rng = np.random.default_rng(0)
+    ret = np.zeros(n)
+    ended = 0
+    for k in range(700):
+        a = (rng.random(n) < 0.01).astype(np.int64)
+        obs, rew, term, trunc, info = vec.step(a)
+        ret += rew
+        assert vec.single_observation_space.contains(obs[0])
+        for i in np.flatnonzero(term | trunc):
+            assert ret[i] == pytest.approx(info["final_info"]["objective"][i], abs=1e-9)
+            ret[i] = 0.0
+            ended += 1
+    assert ended >= n
+
+
+def test_vector_figures_equal_single_env_figures():
+    conds = [Conditions(), Conditions(supply_pressure_gauge_pa=1.5e5),
+             Conditions(load_mass_kg=25.0, friction_scale=1.2),
+             Conditions(dip_start_s=0.4, dip_duration_s=0.3, dip_depth=0.3)]
+    vec = CutOffVectorEnv(num_envs=len(conds))
+    pol = EndStrokePolicy.for_env(vec)
+    figs = run_first_episodes(vec, pol, conds, seed=0)
+    assert FINAL_KEYS <= set(figs)
+    single = CutOffEnv()
+    for i, c in enumerate(conds):
+        obs, _ = single.reset(seed=0, options={"conditions": c})
+        while True:
+            obs, _, term, trunc, info = single.step(pol.predict(obs)[0])
+            if term or trunc:
+                break
+        for k in FINAL_KEYS:
+            assert figs[k][i] == info[k], (i, k)
+
+
+def test_vector_time_limit_and_forced_conditions():
+    vec = CutOffVectorEnv(num_envs=2, time_limit_s=0.3)
+    obs, info = vec.reset(seed=0, options={"conditions": [Conditions(load_mass_kg=5.0),
+                                                           {"load_mass_kg": 20.0}]})
+    assert info["conditions"]["load_mass_kg"].tolist() == [5.0, 20.0]
+    for _ in range(60):
+        obs, rew, term, trunc, info = vec.step(np.zeros(2, dtype=np.int64))
+    # 0.3 s / 5 ms = 60 steps: both were truncated on the 60th
+    assert trunc.all() and not term.any()
+    assert not info["final_info"]["completed"].any()
+
+
+def test_step_count_truncation_reports_real_figures():
+    """A stroke at 1 ms needs ~1200 steps: the registered 800 truncate it, and the episode's
+    books are closed (real wasted energy, the not-completed penalty in the return)."""
+    vec = make_vec(1, control_period_s=0.001)
+    vec.reset(seed=0)
+    ret = 0.0
+    for _ in range(800):
+        _, rew, term, trunc, info = vec.step(np.zeros(1, dtype=np.int64))
+        ret += rew[0]
+    assert trunc[0] and not term[0]
+    fi = info["final_info"]
+    assert fi["energy_wasted_j"][0] > 0.0 and fi["saving_ratio"][0] < 1.0
+    assert not fi["completed"][0] and fi["stroke_time_s"][0] is None
+    assert fi["objective"][0] < -2.0  # not completed: w_stall applies
+    assert ret == pytest.approx(fi["objective"][0], abs=1e-9)
+
+
+def test_final_info_none_stays_none():
+    """Sub-environments ending in the same step, one cut and one not: ``None`` stays ``None``
+    whatever the order."""
+    for actions in ([1, 0], [0, 1]):
+        vec = CutOffVectorEnv(num_envs=2, time_limit_s=0.1)
+        vec.reset(seed=0)
+        for _ in range(20):
+            _, _, term, trunc, info = vec.step(np.array(actions))
+        assert trunc.all()
+        cut = info["final_info"]["cutoff_time_s"]
+        assert cut[actions.index(1)] == 0.0 and cut[actions.index(0)] is None
+        assert info["final_info"]["stalled"].dtype == bool
+        assert info["final_info"]["stick_slip_events"].dtype == np.int64
+
+
+def test_info_after_autoreset_is_the_new_episode():
+    """As in gymnasium's SyncVectorEnv (same-step): the step's info of a reset sub-environment
+    is its new episode's, conditions included (a privileged policy needs them)."""
+    vec = CutOffVectorEnv(num_envs=2, preset="randomized", conditions=QUIET)
+    vec.reset(seed=0)
+    while True:
+        obs, _, term, trunc, info = vec.step(np.array([1, 0]))
+        if term[0] or trunc[0]:
+            break
+    assert info["time_s"][0] == 0.0 and info["position_m"][0] == 0.0
+    assert info["time_s"][1] > 0.0
+    assert info["_conditions"].tolist() == [True, False]
+    new = {k: info["conditions"][k][0] for k in Conditions.__dataclass_fields__}
+    assert new == vec.conditions[0].to_dict()
+
+
+def test_autoreset_off_idles_finished_sub_envs():
+    vec = CutOffVectorEnv(num_envs=2, autoreset=False)
+    assert vec.metadata["autoreset_mode"] == gym.vector.AutoresetMode.DISABLED
+    vec.reset(seed=0)
+    ends = 0
+    for k in range(300):
+        obs, rew, term, trunc, info = vec.step(np.array([1, 0]))
+        if "final_info" in info:
+            ends += int(info["_final_info"].sum())
+        if term.all():
+            break
+    assert term.all() and ends == 2  # each reported once
+    frozen = obs.copy()
+    obs, rew, term, _, info = vec.step(np.array([1, 1]))
+    assert term.all() and not rew.any() and "final_info" not in info
+    np.testing.assert_array_equal(obs, frozen)
+
+
+# --- the SB3 adapter ------------------------------------------------------------------------
+def test_sb3_adapter_vecenv_interface():
+    from stable_baselines3.common.vec_env import VecMonitor
+    from stable_baselines3.common.vec_env.util import obs_space_info
+
+    venv = CutOffVecEnv(num_envs=4, preset="randomized", time_limit_s=1.0)
+    keys, shapes, dtypes = obs_space_info(venv.observation_space)
+    assert shapes[None] == venv.observation_space.shape and dtypes[None] == np.float32
+    mon = VecMonitor(venv)
+    mon.seed(3)
+    obs = mon.reset()
+    assert obs.shape == (4, venv.observation_space.shape[0])
+    mon.seed(3)
+    np.testing.assert_array_equal(mon.reset(), obs)  # seeded resets repeat
+    seen = 0
+    for k in range(300):
+        obs, rew, done, infos = mon.step(np.full(4, int(k > 150)))
+        assert rew.dtype == np.float32 and done.dtype == bool and len(infos) == 4
+        for i in np.flatnonzero(done):
+            d = infos[i]
+            assert d["terminal_observation"].shape == obs[i].shape
+            assert isinstance(d["TimeLimit.truncated"], bool)
+            assert d["episode_return"] == d["objective"]
+            assert d["episode"]["r"] == pytest.approx(d["objective"], abs=1e-5)
+            assert FINAL_KEYS <= set(d)
+            seen += 1
+    assert seen >= 4
+    assert venv.get_attr("num_envs") == [4] * 4
+    assert venv.env_is_wrapped(gym.Wrapper) == [False] * 4
+    assert venv.observation_layout()["size"] == venv.observation_space.shape[0]
+    mon.close()
+
+
+def test_sb3_ppo_smoke():
+    pytest.importorskip("torch")
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    venv = VecMonitor(CutOffVecEnv(num_envs=4, time_limit_s=1.5))
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(256)
+    act, _ = model.predict(venv.reset(), deterministic=True)
+    assert act.shape == (4,) and set(np.unique(act)) <= {0, 1}
+    assert math.isfinite(float(model.logger.name_to_value.get("train/loss", 0.0)))
