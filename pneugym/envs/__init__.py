@@ -2,11 +2,12 @@
 ``import pneugym``), its batched vector version and an SB3 ``VecEnv`` adapter."""
 from .conditions import PRESETS, Conditions, ConditionSpace
 from .cutoff import (
-    OBSERVATION, PARAM_OBSERVATION, CutOffEnv, CutOffVectorEnv, conventional_figures,
+    OBSERVATION, PARAM_OBSERVATION, REGISTERED_MAX_STEPS, CutOffEnv, CutOffVectorEnv,
+    conventional_figures,
 )
 
 ENV_ID = "pneugym/CutOff-v0"
-MAX_EPISODE_STEPS = 800  # 4 s at the default 5 ms control period
+MAX_EPISODE_STEPS = REGISTERED_MAX_STEPS  # 4 s at the default 5 ms control period
 
 
 def register() -> None:
@@ -21,4 +22,4 @@ def register() -> None:
 
 
 __all__ = ["Conditions", "ConditionSpace", "PRESETS", "CutOffEnv", "CutOffVectorEnv",
-           "OBSERVATION", "PARAM_OBSERVATION", "conventional_figures", "ENV_ID", "register"]
+           "OBSERVATION", "PARAM_OBSERVATION", "conventional_figures", "ENV_ID", "MAX_EPISODE_STEPS", "register"]

@@ -88,6 +88,7 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
     Feature("friction_scale", "-", 1.0, "0", "factor on the nominal friction"),
     Feature("valve_delay", "s", 0.4, "0", "valve switching delay"),
 )
+REGISTERED_MAX_STEPS = 800  # max_episode_steps of pneugym/CutOff-v0 (4 s at 5 ms)
 _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
@@ -121,15 +122,14 @@ class _CutOffCore:
     def _configure(self, n: int, preset, conditions, rig, control_period_s, time_limit_s,
                    decision_window_s, reversible, history, observe_params, sensor_lag_s,
                    w_time, w_stall, w_stick, reward_mode) -> None:
-        checks = {
-            "control_period_s": control_period_s > 0, "time_limit_s": time_limit_s > 0,
-            "decision_window_s": decision_window_s >= 0, "w_time": w_time >= 0,
-            "w_stall": w_stall >= 0, "w_stick": w_stick >= 0, "sensor_lag_s": sensor_lag_s >= 0,
-        }
-        for name, ok in checks.items():
-            val = locals()[name]
-            if not (isinstance(val, (int, float)) and math.isfinite(val) and ok):
-                raise ValueError(f"{name} = {val!r} is invalid (finite, >= 0; > 0 for times)")
+        values = {"control_period_s": control_period_s, "time_limit_s": time_limit_s,
+                  "decision_window_s": decision_window_s, "w_time": w_time, "w_stall": w_stall,
+                  "w_stick": w_stick, "sensor_lag_s": sensor_lag_s}
+        for name, val in values.items():
+            ok = isinstance(val, (int, float)) and not isinstance(val, bool) and math.isfinite(val)
+            if not ok or val < 0 or (val == 0 and name in ("control_period_s", "time_limit_s")):
+                raise ValueError(f"{name} = {val!r} is invalid (a finite number >= 0; > 0 for "
+                                 f"control_period_s and time_limit_s)")
         if not (isinstance(history, (int, np.integer)) and history >= 1):
             raise ValueError(f"history = {history!r} must be an integer >= 1")
         if reward_mode not in ("dense", "sparse"):
@@ -298,6 +298,12 @@ class CutOffEnv(_CutOffCore, gym.Env):
             raise ValueError(f"render_mode = {render_mode!r}: only 'rgb_array' is supported")
         self.config = {**_DEFAULTS, **config}
         self._configure(1, **self.config)
+        steps = math.ceil(self.time_limit_s / self.control_period_s - 1e-9)
+        if steps > REGISTERED_MAX_STEPS:
+            gym.logger.warn(
+                f"time_limit_s / control_period_s = {steps} steps, more than the "
+                f"{REGISTERED_MAX_STEPS} of the registered TimeLimit: with gymnasium.make, pass "
+                f"max_episode_steps={steps} too, or episodes end early without their final info")
         self.render_mode = render_mode
         self.action_space = spaces.Discrete(2)
         self.observation_space = self._single_obs_space
@@ -313,9 +319,6 @@ class CutOffEnv(_CutOffCore, gym.Env):
         elif isinstance(cond, Mapping):
             cond = Conditions(**cond)
         self._start(0, cond)
-        self._steps = 0
-        spec_steps = self.spec.max_episode_steps if self.spec is not None else None
-        self._max_steps = spec_steps if spec_steps else np.inf
         self._observe(self._all, self.np_random, fresh=True)
         self._trace = []
         self._record()
@@ -332,9 +335,6 @@ class CutOffEnv(_CutOffCore, gym.Env):
         if st:
             self._status[0] = st
             self._check_status()
-        self._steps += 1
-        if self._steps >= self._max_steps and self._e[EP.E_DONE] == 0.0:
-            r += EP.truncate(self._y, self._p, self._d, self._e)  # the TimeLimit wrapper's step
         self._observe(self._all, self.np_random, fresh=False)
         self._record()
         done = self._e[EP.E_DONE]
