@@ -28,10 +28,6 @@ def test_conditions_reject_bad_fields_by_name(field, value):
         Conditions(**{field: value})
 
 
-@pytest.mark.xfail(strict=True, raises=TypeError, reason=(
-    "BUG envs/conditions.py Conditions.__post_init__ evaluates the comparisons (e.g. "
-    "'10' >= 0) before its isinstance check, so a non-number raises TypeError, not the "
-    "ValueError naming the field"))
 def test_conditions_reject_non_numbers_with_value_error():
     with pytest.raises(ValueError, match="load_mass_kg"):
         Conditions(load_mass_kg="10")

@@ -39,20 +39,17 @@ class Conditions:
     pressure_noise_pa: float = 0.0
 
     def __post_init__(self) -> None:
-        checks = {
-            "supply_pressure_gauge_pa": self.supply_pressure_gauge_pa > 0,
-            "load_mass_kg": self.load_mass_kg >= 0,
-            "friction_scale": self.friction_scale >= 0,
-            "valve_delay_scale": self.valve_delay_scale > 0,
-            "dip_start_s": self.dip_start_s >= 0,
-            "dip_duration_s": self.dip_duration_s >= 0,
-            "dip_depth": 0 <= self.dip_depth < 1,
-            "position_noise_m": self.position_noise_m >= 0,
-            "pressure_noise_pa": self.pressure_noise_pa >= 0,
+        rules = {
+            "supply_pressure_gauge_pa": lambda v: v > 0, "load_mass_kg": lambda v: v >= 0,
+            "friction_scale": lambda v: v >= 0, "valve_delay_scale": lambda v: v > 0,
+            "dip_start_s": lambda v: v >= 0, "dip_duration_s": lambda v: v >= 0,
+            "dip_depth": lambda v: 0 <= v < 1, "position_noise_m": lambda v: v >= 0,
+            "pressure_noise_pa": lambda v: v >= 0,
         }
-        for name, ok in checks.items():
+        for name, rule in rules.items():
             val = getattr(self, name)
-            if not (isinstance(val, (int, float)) and math.isfinite(val) and ok):
+            number = isinstance(val, (int, float)) and not isinstance(val, bool)
+            if not (number and math.isfinite(val) and rule(val)):
                 raise ValueError(f"Conditions.{name} = {val!r} is invalid")
 
     @property

@@ -262,7 +262,7 @@ class _CutOffCore:
             "time_increase": (stroke / t_conv - 1.0) if completed else None,
             "cutoff_time_s": float(e[EP.E_T_CUT]) if e[EP.E_T_CUT] >= 0.0 else None,
             "stalled": bool(e[EP.E_STALLED] > 0.0),
-            "stick_slip_events": int(d[L.D_STICKS]),
+            "stick_slip_events": int(EP.stick_slips(d)),
             "completed": completed,
             "objective": float(e[EP.E_OBJ]),
         }

@@ -36,11 +36,21 @@ NE = 18
 
 
 @njit(cache=True)
+def stick_slips(d):
+    """Stick-slip events: mid-stroke sticks that slipped again (a piston stuck now, e.g. a stall,
+    is not counted until it moves)."""
+    n = d[D_STICKS]
+    if d[D_MODE] == MODE_STUCK:
+        n -= 1.0
+    return n
+
+
+@njit(cache=True)
 def objective(y, P, d, e, done, completed):
     """The episode objective if the episode ended now (while running: the shaping potential).
 
     ``- E_wasted / E_conv - w_time * max(0, T / T_conv - 1) - w_stick * sticks
-    - w_stall * (not completed at the end)``, where ``T`` is the arrival time, the current time
+    - w_stall * (not completed at the end)``, with the sticks of :func:`stick_slips`; where ``T`` is the arrival time, the current time
     while the piston is on its way, or the time limit for a stroke that never completed."""
     t = d[D_T]
     if d[D_T_ARRIVE] >= 0.0:
@@ -49,7 +59,7 @@ def objective(y, P, d, e, done, completed):
         t = e[E_T_LIMIT]
     j = -energy_wasted(y, P, d) / e[E_E_CONV]
     j -= e[E_W_TIME] * max(0.0, t / e[E_T_CONV] - 1.0)
-    j -= e[E_W_STICK] * d[D_STICKS]
+    j -= e[E_W_STICK] * stick_slips(d)
     if done and not completed:
         j -= e[E_W_STALL]
     return j

@@ -1,0 +1,183 @@
+"""What the workflow fits: the nominal parameters (always) and the candidate effects.
+
+Every fitted quantity is a :class:`FitParam`: a field of :class:`~pneugym.params.RigParams`
+(``"group.field"``), its physical bounds, its null value (the value meaning *no effect*) and the
+range the multi-start draws starting values from. The optimiser works on a transformed variable
+``u`` of order one: ``u = ln(θ / ref) / step`` for log parameters, ``u = θ / ref`` otherwise.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..params import RigParams
+
+
+@dataclass(frozen=True)
+class FitParam:
+    """One fitted rig parameter (SI units, those of the field it names)."""
+
+    path: str  # "group.field" of RigParams, e.g. "effects.sensor_lag_s"
+    lo: float
+    hi: float
+    ref: float  # reference scale: u = θ/ref (linear) or ln(θ/ref)/log_step (log)
+    log: bool = False
+    log_step: float = 1.0
+    null: float | None = None  # value meaning "no effect" (None: a shape parameter)
+    start: tuple[float, float] | None = None  # plausible range for random starts (natural units)
+    unit: str = ""
+    diff_step: float | None = None  # finite-difference step in u (None: the fit's default)
+
+    def __post_init__(self) -> None:
+        if not (self.lo < self.hi) or (self.log and self.lo <= 0):
+            raise ValueError(f"FitParam {self.path}: bounds must satisfy 0 < lo < hi (log) or lo < hi")
+        if self.ref <= 0:
+            raise ValueError(f"FitParam {self.path}: ref must be > 0")
+
+    @property
+    def name(self) -> str:
+        return self.path.split(".", 1)[1]
+
+    def to_u(self, value: float) -> float:
+        v = min(max(float(value), self.lo), self.hi)
+        return math.log(v / self.ref) / self.log_step if self.log else v / self.ref
+
+    def from_u(self, u: float) -> float:
+        return self.ref * math.exp(u * self.log_step) if self.log else u * self.ref
+
+    def dvalue_du(self, u: float) -> float:
+        return self.from_u(u) * self.log_step if self.log else self.ref
+
+    @property
+    def u_bounds(self) -> tuple[float, float]:
+        return self.to_u(self.lo), self.to_u(self.hi)
+
+    def draw(self, rng: np.random.Generator) -> float:
+        """A random start (log-uniform over ``start`` for positive ranges, else uniform)."""
+        a, b = self.start or (self.lo, self.hi)
+        if a > 0:
+            return float(math.exp(rng.uniform(math.log(a), math.log(b))))
+        return float(rng.uniform(a, b))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A named model extension: the effect parameters it adds, and what it explains."""
+
+    name: str
+    params: tuple[FitParam, ...]
+    explains: str = ""
+    typical: Mapping[str, float] = field(default_factory=dict)  # first start (natural units)
+
+    @property
+    def magnitude(self) -> tuple[FitParam, ...]:
+        """The parameters with a null value: the effect is present if one is clearly away from it."""
+        return tuple(p for p in self.params if p.null is not None)
+
+
+def apply(base: RigParams, params: Sequence[FitParam], values: Sequence[float]) -> RigParams:
+    """``base`` with the fitted values written into their fields."""
+    groups: dict[str, dict[str, float]] = {}
+    for p, v in zip(params, values):
+        g, name = p.path.split(".", 1)
+        groups.setdefault(g, {})[name] = float(v)
+    return base.with_(**groups)
+
+
+def read(rig: RigParams, path: str) -> float:
+    g, name = path.split(".", 1)
+    return float(getattr(getattr(rig, g), name))
+
+
+def nominal_params(rig: RigParams) -> tuple[FitParam, ...]:
+    """The nominal parameters calibrated before any effect (issue step 2), around the values
+    ``rig`` states: orifice discharge coefficient (all orifices), static (breakaway), Coulomb
+    and viscous friction; log-scaled (one unit = 10 %), within physical bounds."""
+    cd = rig.valve.discharge_coefficient
+    fr = rig.friction
+    out = [FitParam("valve.discharge_coefficient", 0.2, 1.0, min(cd, 1.0), log=True, log_step=0.1,
+                    unit="-")]
+    for name, val, default, lo_f, hi_f in (("static_n", fr.static_n, 359.0, 1 / 3, 3.0),
+                                           ("coulomb_n", fr.coulomb_n, 126.0, 0.05, 4.0),
+                                           ("viscous_n_s_per_m", fr.viscous_n_s_per_m, 1557.0, 0.02, 5.0)):
+        ref = val if val > 0 else default
+        unit = "N s/m" if name.startswith("viscous") else "N"
+        # the breakaway moment is resolved to a substep: the SSR is a staircase in static_n,
+        # so its finite difference spans several stairs (3 %)
+        out.append(FitParam(f"friction.{name}", lo_f * ref, hi_f * ref, ref, log=True, log_step=0.1,
+                            unit=unit, diff_step=0.3 if name == "static_n" else None))
+    return tuple(out)
+
+
+#: The candidate effects (names as in ``EffectParams.active``).
+CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
+    Candidate(
+        "leakage",
+        (FitParam("effects.leak_drive_area_m2", 0.0, 5e-6, 1e-7, null=0.0, start=(3e-8, 1e-6), unit="m²"),
+         FitParam("effects.leak_piston_area_m2", 0.0, 5e-6, 1e-7, null=0.0, start=(3e-8, 1e-6), unit="m²")),
+        "trapped pressure sagging after cut-off, exhaust pressure creeping up (seal leak)",
+        {"leak_drive_area_m2": 1e-7, "leak_piston_area_m2": 1e-7}),
+    Candidate(
+        "heat_transfer",
+        (FitParam("effects.heat_transfer_time_constant_s", 1e-3, 20.0, 1.0, log=True, null=0.0,
+                  start=(0.05, 3.0), unit="s"),),
+        "pressure overshoot on fast filling/expansion that relaxes as the air reaches wall temperature",
+        {"heat_transfer_time_constant_s": 0.5}),
+    Candidate(
+        "stribeck_friction",
+        (FitParam("effects.stribeck_force_n", 0.0, 1000.0, 100.0, null=0.0, start=(30.0, 300.0), unit="N"),
+         FitParam("effects.stribeck_velocity_m_s", 1e-3, 0.3, 0.01, log=True, start=(0.005, 0.08),
+                  unit="m/s")),
+        "extra friction at low speed: slow breakaway, creeping end of stroke (velocity weakening)",
+        {"stribeck_force_n": 100.0, "stribeck_velocity_m_s": 0.02}),
+    Candidate(
+        "sensor_lag",
+        (FitParam("effects.sensor_lag_s", 0.0, 0.2, 0.01, null=0.0, start=(0.002, 0.04), unit="s"),),
+        "measured pressures late on every fast change while the position fits",
+        {"sensor_lag_s": 0.01}),
+    Candidate(
+        "dead_volume",
+        (FitParam("effects.dead_volume_m3", 0.0, 2e-3, 1e-4, null=0.0, start=(1e-5, 4e-4), unit="m³"),),
+        "slower pressure rise before motion, lower pressure after expansion (extra volume at the port)",
+        {"dead_volume_m3": 5e-5}),
+)}
+
+#: Experiments that separate two candidates (keys: sorted name pairs).
+SEPARATING_EXPERIMENTS: dict[tuple[str, str], str] = {
+    ("heat_transfer", "leakage"):
+        "a longer hold after cut-off (at least 5 s, piston at the end of stroke): a leak keeps the "
+        "trapped pressure falling towards ambient, heat transfer settles within a few time constants",
+    ("dead_volume", "sensor_lag"):
+        "a slow supply ramp with the piston blocked: a lag only shifts the measured pressure in time, "
+        "an extra volume changes how fast it rises for the same flow (record mdot_supply)",
+    ("heat_transfer", "sensor_lag"):
+        "hold the pressure after a fast fill: a sensor lag settles within tens of ms, heat transfer "
+        "drifts over its time constant; or add a fast reference transducer",
+    ("dead_volume", "heat_transfer"):
+        "a slow fill (throttled supply, nearly isothermal) at the retracted end: an extra volume still "
+        "slows the rise, heat transfer then has no effect",
+    ("stribeck_friction", "sensor_lag"):
+        "compare position and pressure timing: Stribeck friction delays the motion, a sensor lag only "
+        "the measured pressures",
+    ("leakage", "stribeck_friction"):
+        "a hold with the piston blocked mid-stroke after cut-off: only a leak changes the pressure",
+    ("dead_volume", "leakage"):
+        "a hold after cut-off at the end of stroke: a leak lowers the pressure, a dead volume does not",
+    ("leakage", "sensor_lag"):
+        "a longer hold after cut-off: a lag settles in tens of ms, a leak keeps the pressure falling",
+    ("dead_volume", "stribeck_friction"):
+        "a fill with the piston blocked: a dead volume slows the pressure rise, friction does not act",
+    ("heat_transfer", "stribeck_friction"):
+        "a fill and hold with the piston blocked: heat transfer shows as a pressure drift, friction not",
+}
+
+
+def separating_experiment(a: str, b: str) -> str:
+    """The suggested experiment that would tell effect ``a`` from ``b``."""
+    key = tuple(sorted((a, b)))
+    return SEPARATING_EXPERIMENTS.get(
+        key, f"an experiment where {a} and {b} predict different responses: vary the hold after "
+             f"cut-off, the supply pressure and the load, and compare again")

@@ -1,0 +1,458 @@
+"""The discrepancy workflow: calibrate, localise, fit candidate effects, decide, update, compare.
+
+>>> from pneugym.data import read_runs
+>>> from pneugym.discrepancy import Discrepancy
+>>> d = Discrepancy(seed=0).fit(read_runs(["runs/"]))     # doctest: +SKIP
+>>> print(d)                                              # decision, candidates, gaps
+>>> d.report("out/")                                      # report.json, report.md, plots
+
+Steps (issue 5): (1) the nominal model of every run from its JSON replays the recorded valve
+command; (2) the nominal parameters (discharge coefficient, static, Coulomb, viscous friction)
+are calibrated first; (3) residuals per run, phase and channel, in units of the noise level,
+say where the model fails; (4) every candidate effect is fitted jointly with the nominal
+parameters (multi-start least squares) and ranked; (5) an effect is named only if it passes
+every check in :attr:`Discrepancy.checks`; (6) the updated model is the calibrated rig plus the
+named effect; (7) NRMSE before/after on the fitted runs and the held-out run.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+from scipy import stats as sps
+
+from ..data import MeasuredRun, read_runs
+from ..params import RigParams
+from ..plant import SimulationError
+from .candidates import CANDIDATES, Candidate, FitParam, apply, nominal_params, read, separating_experiment
+from .fit import Executor, FitResult, Job, Problem, best_of, solve
+from .residuals import (Finding, RunPhases, channels_of, estimate_noise, localise, nrmse, replay,
+                        run_phases)
+from .stats import f_test, inflation, lr_test, standard_errors
+
+MODELS = ("nominal", "calibrated", "updated")
+
+
+@dataclass
+class CandidateResult:
+    """A candidate effect fitted jointly with the nominal parameters, and how it fared.
+
+    SSRs are sums of squared noise-normalised residuals; ``*0`` are those of the calibrated
+    nominal model. ``improvement_*`` = ``1 - SSR / SSR0``. ``score`` (the ranking) is the
+    improvement over all runs, fitted and held out."""
+
+    name: str
+    values: dict[str, float]  # every fitted parameter ("group.field" -> value)
+    effect: dict[str, float]  # the effect's parameters (field -> value)
+    stderr: dict[str, float]  # their standard errors (inflated for autocorrelation)
+    z: dict[str, float]  # |value - null| / stderr of the magnitude parameters
+    at_bound: list[str]
+    ssr_fit: float
+    ssr0_fit: float
+    n_fit: int
+    kappa: float  # variance inflation of the fit residuals (N / N_eff)
+    n_eff: float
+    F: float
+    p_value: float
+    ssr_holdout: float | None
+    ssr0_holdout: float | None
+    n_eff_holdout: float | None
+    holdout_stat: float | None
+    holdout_p: float | None
+    improvement_fit: float
+    improvement_holdout: float | None
+    score: float
+    checks: dict[str, bool | None]
+    passed: bool
+    reasons: list[str]
+    nfev: int
+    start_ssr: list[float]
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["parameters"] = d.pop("effect")
+        return d
+
+
+class Discrepancy:
+    """Find where simulation and measurement disagree, name the missing effect, add it.
+
+    Parameters
+    ----------
+    candidates : names in :data:`CANDIDATES` or :class:`Candidate` objects (default: all five).
+    holdout : ``"auto"`` (the median run when the runs are ordered by cut-off time, a run
+        never cut off counting as the latest: with the thesis protocol the end-stroke cut-off,
+        bracketed by the early cut-off and the conventional run), a run name, or ``None`` (no
+        held-out run: the held-out check is then skipped and the report says so).
+    n_starts : least-squares starts per fit (the best of ``n_probe`` screened start points).
+    n_probe : start points screened by one simulation each before the starts are chosen.
+    max_nfev : iterations per least-squares start.
+    alpha : significance level; divided by the number of candidates (Bonferroni).
+    min_improvement : smallest fraction of the calibrated model's fit SSR an effect must remove
+        (half of it on the held-out run): statistical significance on thousands of samples
+        is not enough on its own.
+    z_min : a magnitude parameter must be this many standard errors from its null value.
+    seed : seeds every random start; the result does not depend on ``n_jobs``.
+    n_jobs : processes for the starts (1 = serial; None = all cores).
+    progress : show a tqdm progress bar.
+    """
+
+    def __init__(self, candidates: Iterable[str | Candidate] | None = None, holdout: str | None = "auto",
+                 n_starts: int = 4, n_probe: int = 16, max_nfev: int = 40, alpha: float = 0.01,
+                 min_improvement: float = 0.1, z_min: float = 3.0, seed: int = 0,
+                 n_jobs: int | None = 1, progress: bool = False):
+        cands = []
+        for c in (candidates if candidates is not None else CANDIDATES):
+            if isinstance(c, Candidate):
+                cands.append(c)
+            elif c in CANDIDATES:
+                cands.append(CANDIDATES[c])
+            else:
+                raise ValueError(f"unknown candidate {c!r}; choose from {sorted(CANDIDATES)}")
+        if not cands:
+            raise ValueError("at least one candidate is needed")
+        for name, v, ok in (("n_starts", n_starts, n_starts >= 1), ("n_probe", n_probe, n_probe >= 1),
+                            ("max_nfev", max_nfev, max_nfev >= 1),
+                            ("alpha", alpha, 0 < alpha < 1),
+                            ("min_improvement", min_improvement, 0 <= min_improvement < 1),
+                            ("z_min", z_min, z_min >= 0)):
+            if not ok:
+                raise ValueError(f"Discrepancy {name} = {v!r} is out of range")
+        self.candidates = tuple(cands)
+        self.holdout = holdout
+        self.n_starts = int(n_starts)
+        self.n_probe = int(max(n_probe, n_starts))
+        self.max_nfev = int(max_nfev)
+        self.alpha = float(alpha)
+        self.min_improvement = float(min_improvement)
+        self.z_min = float(z_min)
+        self.seed = int(seed)
+        self.n_jobs = n_jobs
+        self.progress = progress
+
+    # --------------------------------------------------------------------------------------
+    def config(self) -> dict[str, Any]:
+        return {"candidates": [c.name for c in self.candidates], "holdout": self.holdout,
+                "n_starts": self.n_starts, "n_probe": self.n_probe, "max_nfev": self.max_nfev,
+                "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
+                "seed": self.seed, "n_jobs": self.n_jobs}
+
+    def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> "Discrepancy":
+        """Run the workflow on measured runs (or paths to runs / folders of runs)."""
+        t0 = time.perf_counter()
+        runs = list(runs)
+        if runs and not isinstance(runs[0], MeasuredRun):
+            runs = read_runs(runs, base)
+        if not runs:
+            raise ValueError("no runs given")
+        self.runs_ = runs
+        self.rigs_ = [r.rig(base) for r in runs]
+        self.phases_: list[RunPhases] = [run_phases(r, g) for r, g in zip(runs, self.rigs_)]
+        self.sigma_ = estimate_noise(runs)
+        hold = self._choose_holdout()
+        self.holdout_runs_ = [r for r in runs if r.name == hold]
+        self.fit_runs_ = [r for r in runs if r.name != hold]
+        fit_idx = [i for i, r in enumerate(runs) if r.name != hold]
+        fit_bases = [self.rigs_[i] for i in fit_idx]
+        rng = np.random.default_rng(self.seed)
+        executor = Executor(self.n_jobs)
+        total = self.n_starts * (1 + len(self.candidates))
+        bar = _progress(total, self.progress)
+        try:
+            # (1) nominal replay, (2) calibration of the nominal parameters
+            self.sims_ = {"nominal": [replay(r, g) for r, g in zip(runs, self.rigs_)]}
+            nom = nominal_params(fit_bases[0])
+            self.nominal_params_ = nom
+            json_vals = np.array([read(fit_bases[0], p.path) for p in nom])
+            prob = Problem(self.fit_runs_, fit_bases, self.sigma_, nom)
+            starts = self._starts(prob, [json_vals], [nom], rng)
+            bar.set_description("calibrating nominal parameters")
+            res = executor.map(solve, [Job(self.fit_runs_, fit_bases, self.sigma_, nom, s, self.max_nfev)
+                                       for s in starts], bar.update)
+            self.calibrated_: FitResult = best_of(prob, res)
+            cal_vals = self.calibrated_.values
+            all_prob = Problem(runs, self.rigs_, self.sigma_, nom)
+            self.sims_["calibrated"] = all_prob.simulate(cal_vals)
+            seg0 = all_prob.segments(cal_vals)
+            # (3) localisation
+            self.findings_ = {m: localise(runs, self.sims_[m], self.phases_, self.sigma_)
+                              for m in ("nominal", "calibrated")}
+            # (4) candidates
+            bar.set_description("fitting candidate effects")
+            jobs, slices, problems = [], [], []
+            for cand in self.candidates:
+                params = nom + cand.params
+                p = Problem(self.fit_runs_, fit_bases, self.sigma_, params)
+                typical = [cand.typical.get(q.name, q.draw(rng)) for q in cand.params]
+                firsts = [np.concatenate([cal_vals, typical]), np.concatenate([json_vals, typical])]
+                st = self._starts(p, firsts, [nom, cand.params], rng)
+                slices.append(slice(len(jobs), len(jobs) + len(st)))
+                jobs += [Job(self.fit_runs_, fit_bases, self.sigma_, params, s, self.max_nfev) for s in st]
+                problems.append(p)
+            out = executor.map(solve, jobs, bar.update)
+            results = [self._judge(c, best_of(p, out[s]), seg0)
+                       for c, p, s in zip(self.candidates, problems, slices)]
+        finally:
+            executor.close()
+            bar.close()
+        # (5) decision
+        self.candidates_ = sorted(results, key=lambda c: -c.score)
+        self._decide()
+        # (6) updated model, (7) gaps
+        if self.named_effect_ in [c.name for c in self.candidates]:
+            best = next(c for c in self.candidates_ if c.name == self.named_effect_)
+            cand = next(c for c in self.candidates if c.name == self.named_effect_)
+            params = nom + cand.params
+            vals = np.array([best.values[p.path] for p in params])
+        else:
+            params, vals = nom, cal_vals
+        self.fitted_params_ = {p.path: float(v) for p, v in zip(params, vals)}
+        self._fitted = (tuple(params), vals)
+        self.updated_rigs_ = [apply(g, params, vals) for g in self.rigs_]
+        self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
+        self.gaps_ = {m: self._gaps(self.sims_[m]) for m in MODELS}
+        self.findings_["updated"] = localise(runs, self.sims_["updated"], self.phases_, self.sigma_)
+        self.wall_time_s_ = time.perf_counter() - t0
+        return self
+
+    # --------------------------------------------------------------------------------------
+    def _choose_holdout(self) -> str | None:
+        names = [r.name for r in self.runs_]
+        if self.holdout is None or len(self.runs_) < 2:
+            if self.holdout not in (None, "auto"):
+                raise ValueError(f"holdout run {self.holdout!r}: a held-out run needs at least 2 runs")
+            return None
+        if self.holdout != "auto":
+            if self.holdout not in names:
+                raise ValueError(f"holdout run {self.holdout!r} is not among the runs {names}")
+            return self.holdout
+        # the median run by cut-off time (never cut = latest): the fitted runs bracket it, so
+        # the held-out check tests interpolation between conditions the fit has seen
+        order = sorted(zip(self.runs_, self.phases_),
+                       key=lambda rp: (np.inf if rp[1].t_cut_effective_s is None
+                                       else rp[1].t_cut_effective_s, rp[0].name))
+        return order[len(order) // 2][0].name
+
+    def _starts(self, prob: Problem, firsts: list[np.ndarray], groups: list[tuple[FitParam, ...]],
+                rng: np.random.Generator) -> list[np.ndarray]:
+        """``n_starts`` start points: the given ones plus random ones (nominal part jittered
+        by a few percent, effect part drawn from its plausible range), screened by one
+        simulation each; the best ``n_starts`` by SSR."""
+        pts = [np.asarray(f, float) for f in firsts]
+        nom = groups[0]
+        while len(pts) < self.n_probe:
+            base = pts[len(pts) % len(firsts)]
+            v = base.copy()
+            v[:len(nom)] *= np.exp(rng.normal(0.0, 0.03, len(nom)))
+            v[len(nom):] = [q.draw(rng) for q in prob.params[len(nom):]]
+            pts.append(v)
+        if len(pts) <= self.n_starts:
+            return pts
+        cost = []
+        for v in pts:
+            r = prob.residuals(np.array([q.to_u(x) for q, x in zip(prob.params, v)]))
+            cost.append(float(r @ r))
+        order = np.argsort(cost, kind="stable")
+        return [pts[i] for i in order[:self.n_starts]]
+
+    def _split(self, segs) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        hold = {r.name for r in self.holdout_runs_}
+        return ([s for n, _, s in segs if n not in hold], [s for n, _, s in segs if n in hold])
+
+    def _judge(self, cand: Candidate, fr: FitResult, seg0) -> CandidateResult:
+        """Statistics and checks of one fitted candidate against the calibrated model."""
+        nom = self.nominal_params_
+        all_prob = Problem(self.runs_, self.rigs_, self.sigma_, fr.params)
+        try:
+            segs = all_prob.segments(fr.values)
+        except (SimulationError, ValueError):
+            segs = [(n, c, np.full(s.size, 1e4)) for n, c, s in seg0]
+        fit1, hold1 = self._split(segs)
+        fit0, hold0 = self._split(seg0)
+        ssr1, ssr0 = _ssr(fit1), _ssr(fit0)
+        n = int(sum(s.size for s in fit1))
+        kappa, n_eff = inflation(fit1)
+        p_extra = len(cand.params)
+        F, pval = f_test(ssr0, ssr1, p_extra, len(fr.params), n_eff)
+        se_u = standard_errors(fr.jac, fr.ssr, n, kappa)
+        effect, stderr, z, at_bound = {}, {}, {}, []
+        for k, q in enumerate(fr.params):
+            if k < len(nom):
+                continue
+            u, val = fr.u[k], fr.values[k]
+            effect[q.name] = float(val)
+            se = float(se_u[k] * q.dvalue_du(u))
+            stderr[q.name] = se
+            lo, hi = q.u_bounds
+            tol = 1e-3 * (hi - lo)
+            on_lo, on_hi = u - lo <= tol, hi - u <= tol
+            if q.null is not None:
+                z[q.name] = float(abs(val - q.null) / se) if se > 0 else float("inf")
+                if on_hi or (on_lo and q.lo != q.null):
+                    at_bound.append(q.name)
+            elif on_lo or on_hi:
+                at_bound.append(q.name)
+        improvement_fit = 1.0 - ssr1 / ssr0 if ssr0 > 0 else 0.0
+        sig_level = self.alpha / len(self.candidates)
+        checks: dict[str, bool | None] = {
+            "significant": pval < sig_level,
+            "material": improvement_fit >= self.min_improvement,
+            "away_from_null": bool(z) and max(z.values()) >= self.z_min,
+            "not_on_bound": not at_bound,
+        }
+        reasons = []
+        if not checks["significant"]:
+            reasons.append(f"fit improvement not significant (F = {F:.3g}, p = {pval:.2g} >= "
+                           f"{sig_level:.2g} with N_eff = {n_eff:.0f})")
+        if not checks["material"]:
+            reasons.append(f"removes only {improvement_fit:.1%} of the calibrated model's misfit "
+                           f"(< {self.min_improvement:.0%})")
+        if not checks["away_from_null"]:
+            reasons.append("no effect parameter is clearly away from its null value (z = "
+                           + ", ".join(f"{k} {v:.2g}" for k, v in z.items()) + f" < {self.z_min:g})")
+        if not checks["not_on_bound"]:
+            reasons.append(f"fitted on a bound: {', '.join(at_bound)}")
+        ssr1h = ssr0h = neh = hstat = hp = imp_h = None
+        if self.holdout_runs_:
+            ssr1h, ssr0h = _ssr(hold1), _ssr(hold0)
+            _, neh = inflation(hold1)
+            hstat, hp = lr_test(ssr0h, ssr1h, neh)
+            imp_h = 1.0 - ssr1h / ssr0h if ssr0h > 0 else 0.0
+            ok = hp < sig_level and imp_h >= 0.5 * self.min_improvement
+            checks["improves_holdout"] = ok
+            if not ok:
+                reasons.append(f"held-out run not improved enough ({imp_h:+.1%} of its misfit, "
+                               f"p = {hp:.2g})")
+        else:
+            checks["improves_holdout"] = None
+        ssr_all1, ssr_all0 = ssr1 + (ssr1h or 0.0), ssr0 + (ssr0h or 0.0)
+        score = 1.0 - ssr_all1 / ssr_all0 if ssr_all0 > 0 else 0.0
+        passed = all(v for v in checks.values() if v is not None)
+        return CandidateResult(
+            name=cand.name, values=fr.as_dict(), effect=effect, stderr=stderr, z=z, at_bound=at_bound,
+            ssr_fit=ssr1, ssr0_fit=ssr0, n_fit=n, kappa=kappa, n_eff=n_eff, F=F, p_value=pval,
+            ssr_holdout=ssr1h, ssr0_holdout=ssr0h, n_eff_holdout=neh, holdout_stat=hstat,
+            holdout_p=hp, improvement_fit=improvement_fit, improvement_holdout=imp_h, score=score,
+            checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr)
+
+    def _decide(self) -> None:
+        passed = [c for c in self.candidates_ if c.passed]
+        self.ambiguous_: list[str] = []
+        self.suggestion_: str | None = None
+        if not passed:
+            self.named_effect_ = "none"
+            self.decision_ = ("none: no candidate passes every check; the calibrated nominal model "
+                              "is kept")
+            return
+        a = passed[0]
+        if len(passed) > 1:
+            b = passed[1]
+            ssr_a = a.ssr_fit + (a.ssr_holdout or 0.0)
+            ssr_b = b.ssr_fit + (b.ssr_holdout or 0.0)
+            n_eff = a.n_eff + (a.n_eff_holdout or 0.0)
+            stat = n_eff * float(np.log(ssr_b / ssr_a)) if ssr_a > 0 else 0.0
+            p = float(sps.chi2.sf(stat, 1))
+            self.separation_ = {"best": a.name, "runner_up": b.name, "statistic": stat, "p_value": p}
+            if p >= self.alpha:
+                self.named_effect_ = "ambiguous"
+                self.ambiguous_ = [a.name, b.name]
+                self.suggestion_ = separating_experiment(a.name, b.name)
+                self.decision_ = (f"ambiguous: {a.name} and {b.name} explain the data about equally "
+                                  f"(N_eff ln(SSR ratio) = {stat:.3g}, p = {p:.2g}); to separate "
+                                  f"them: {self.suggestion_}")
+                return
+        self.named_effect_ = a.name
+        self.decision_ = (f"{a.name}: passes every check and removes {a.score:.1%} of the calibrated "
+                          f"model's misfit over all runs")
+        if len(passed) > 1:
+            self.decision_ += f" (clearly better than {passed[1].name}, p = {self.separation_['p_value']:.2g})"
+
+    def _gaps(self, sims) -> dict[str, dict[str, float]]:
+        out = {}
+        idx = {r.name: i for i, r in enumerate(self.runs_)}
+        for label, rs in (("fit", self.fit_runs_), ("holdout", self.holdout_runs_), ("all", self.runs_)):
+            if rs:
+                out[label] = nrmse(rs, [sims[idx[r.name]] for r in rs])
+        return out
+
+    # --------------------------------------------------------------------------------------
+    @property
+    def gap_before(self) -> float:
+        """Overall NRMSE of the nominal model (as the runs' JSON give it) over all runs."""
+        return self.gaps_["nominal"]["all"]["overall"]
+
+    @property
+    def gap_after(self) -> float:
+        """Overall NRMSE of the updated model over all runs."""
+        return self.gaps_["updated"]["all"]["overall"]
+
+    @property
+    def gap_reduction(self) -> float:
+        """``1 - gap_after / gap_before``."""
+        return 1.0 - self.gap_after / self.gap_before
+
+    @property
+    def updated_model(self) -> RigParams:
+        """The updated rig (at the operating point of the first fitted run)."""
+        return self.updated_rigs_[self.runs_.index(self.fit_runs_[0])]
+
+    def updated_rig(self, run: MeasuredRun, base: RigParams | None = None) -> RigParams:
+        """The updated model at the operating point of any run (its JSON + the fitted values)."""
+        params, vals = self._fitted
+        return apply(run.rig(base), params, vals)
+
+    def predict(self, run: MeasuredRun) -> dict[str, np.ndarray]:
+        """Channels the updated model predicts for ``run`` (its valve command replayed)."""
+        return replay(run, self.updated_rig(run))
+
+    def score(self, runs: Sequence[MeasuredRun]) -> float:
+        """Overall NRMSE of the updated model on ``runs`` (lower is better)."""
+        return nrmse(runs, [self.predict(r) for r in runs])["overall"]
+
+    def report(self, out: str, plots: bool = True):
+        """Write ``report.json``, ``report.md``, the updated model and the PNG plots to ``out``."""
+        from .report import write_report
+        return write_report(self, out, plots=plots)
+
+    def summary(self) -> str:
+        if not hasattr(self, "named_effect_"):
+            return "Discrepancy (not fitted)"
+        lines = [f"named effect: {self.named_effect_}", f"  {self.decision_}",
+                 f"gap (overall NRMSE, all runs): {self.gap_before:.4g} -> {self.gap_after:.4g} "
+                 f"({self.gap_reduction:+.1%} reduction)",
+                 "candidates (best first):"]
+        for c in self.candidates_:
+            eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
+            mark = "PASS" if c.passed else "fail"
+            lines.append(f"  {mark} {c.name:18s} score {c.score:+.3f}  {eff}")
+            for r in c.reasons:
+                lines.append(f"         - {r}")
+        worst = self.findings_["calibrated"][:3]
+        if worst:
+            lines.append("worst residuals of the calibrated nominal model:")
+            lines += [f"  {f.sentence()}" for f in worst]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+
+def _ssr(segs: Sequence[np.ndarray]) -> float:
+    return float(sum(float(s @ s) for s in segs))
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None: ...
+
+    def set_description(self, s: str) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def _progress(total: int, show: bool):
+    if not show:
+        return _NoBar()
+    from tqdm.auto import tqdm
+    return tqdm(total=total, unit="fit", desc="discrepancy")
