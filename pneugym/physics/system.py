@@ -22,7 +22,7 @@ from .layout import (
     Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
 from .line import fd_rhs, lumped_rhs
-from .orifice import NOC, mass_flow
+from .orifice import flow_at
 
 
 #: Karnopp velocity dead band [m/s]: a decelerating piston slower than this sticks if |F| <= Fs.
@@ -32,7 +32,7 @@ V_STICK = 1e-5
 # --------------------------------------------------------------------------------------------
 # valve
 # --------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _ramp(s0, t0, target, tau, ramp):
     """Spool opening at ``tau`` moving from ``s0`` at ``t0`` towards ``target`` at 1/ramp per s."""
     ds = (tau - t0) / ramp
@@ -43,7 +43,7 @@ def _ramp(s0, t0, target, tau, ramp):
     return s0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def valve_opening(d, P, tau):
     """Main-valve opening [0, 1] and exhaust-path opening at time ``tau`` (>= d[D_T]).
 
@@ -64,7 +64,7 @@ def valve_opening(d, P, tau):
     return s, se
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def command(d, P, value):
     """Give the valve command ``value`` (1 = supply connected, 0 = cut off) at the current time.
     It takes effect after the valve delay ``P[P_DELAY]``."""
@@ -83,7 +83,7 @@ def command(d, P, value):
     d[D_NQ] = nq + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _pop_due_commands(d, P, t):
     """Make queued commands whose effective time is <= t the ramp in force."""
     while d[D_NQ] > 0 and d[D_Q0] <= t:
@@ -103,7 +103,7 @@ def _pop_due_commands(d, P, t):
 # --------------------------------------------------------------------------------------------
 # pressures and right-hand side
 # --------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def chamber_pressures(y, P, b):
     """Driving and exhaust chamber pressures [Pa] and volumes [m³] for state ``y``."""
     x = min(max(y[b + Y_X], 0.0), P[P_STROKE])
@@ -113,13 +113,19 @@ def chamber_pressures(y, P, b):
     return y[b + Y_MD] * R * y[b + Y_TD] / vd, y[b + Y_ME] * R * y[b + Y_TE] / ve, vd, ve
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rhs(tau, y, P, d, mode, dy, p):
     """dy/dt at time ``tau``; ``p`` (n) receives the line-cell pressures. Returns the supply flow."""
+    s, se = valve_opening(d, P, tau)
+    return rhs_valve(tau, s, se, y, P, mode, dy, p)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rhs_valve(tau, s, se, y, P, mode, dy, p):
+    """:func:`rhs` with the main-valve and exhaust-path openings ``s``, ``se`` given."""
     n = int(P[P_NCELLS])
     b = 2 * n - 1
     R, gam, T, pa = P[P_R], P[P_GAMMA], P[P_T], P[P_PA]
-    oc = P[P_OC:P_OC + NOC]
     sT = P[P_SQRT_T]
     RT = R * T
     for i in range(n):
@@ -130,26 +136,24 @@ def rhs(tau, y, P, d, mode, dy, p):
     sTd = sT if Td == T else math.sqrt(Td)
     sTe = sT if Te == T else math.sqrt(Te)
     stroke = P[P_STROKE]
-    s, se = valve_opening(d, P, tau)
 
     q_in = 0.0
     if s > 0.0:
-        q_in = mass_flow(P[P_PS], p[0], s * P[P_CDA_VALVE], sT, sT, oc)
+        q_in = flow_at(P[P_PS], p[0], s * P[P_CDA_VALVE], sT, sT, P, P_OC)
     fd = cushion_factor(x, P[P_CUSH_LEN], P[P_CUSH_FD], P[P_CUSH_RAMP])
     fe = cushion_factor(stroke - x, P[P_CUSH_LEN], P[P_CUSH_FE], P[P_CUSH_RAMP])
-    q_port = mass_flow(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, oc)
+    q_port = flow_at(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, P, P_OC)
     q_ex = 0.0
     if se > 0.0:
-        q_ex = mass_flow(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, oc)
-    q_ld = mass_flow(pd, pa, P[P_CDA_LEAK_D], sTd, sT, oc)
-    q_lp = mass_flow(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, oc)
+        q_ex = flow_at(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, P, P_OC)
+    q_ld = flow_at(pd, pa, P[P_CDA_LEAK_D], sTd, sT, P, P_OC)
+    q_lp = flow_at(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, P, P_OC)
 
     # line
     if P[P_LINE_MODEL] == 0.0:
-        fd_rhs(y[n:b], q_in, q_port, p, RT, P[P_LINE_A], P[P_DX],
-               P[P_LINE_D], P[P_MU], P[P_AV], dy[:n], dy[n:b], n)
+        fd_rhs(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV], dy, n)
     else:
-        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, oc, dy[:n], n)
+        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, P, P_OC, dy, n)
         for j in range(n, b):
             dy[j] = 0.0
 
@@ -189,7 +193,12 @@ def rhs(tau, y, P, d, mode, dy, p):
 # --------------------------------------------------------------------------------------------
 # one substep
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
+# The hot loop. ``_nrt=False``: the substep allocates nothing, and without numba's runtime the
+# array arguments of the inlined kernels are not reference-counted (atomic increments and
+# decrements around every branch cost about a third of a substep). ``error_model="numpy"``
+# everywhere: a division by zero gives inf/NaN, which the state check below reports, instead
+# of a Python exception path in every division.
+@njit(cache=True, error_model="numpy", _nrt=False)
 def substep(y, P, d, h, k, y1, y2, p):
     """Advance by ``h`` [s] with SSP-RK3 (Shu-Osher), then apply the events: valve commands
     coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code."""
@@ -201,13 +210,16 @@ def substep(y, P, d, h, k, y1, y2, p):
     v_old = y[b + Y_V]
     x_old = y[b + Y_X]
 
-    rhs(t, y, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t)
+    rhs_valve(t, s, se, y, P, mode, k, p)
     for i in range(ny):
         y1[i] = y[i] + h * k[i]
-    rhs(t + h, y1, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t + h)
+    rhs_valve(t + h, s, se, y1, P, mode, k, p)
     for i in range(ny):
         y2[i] = 0.75 * y[i] + 0.25 * (y1[i] + h * k[i])
-    rhs(t + 0.5 * h, y2, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t + 0.5 * h)
+    rhs_valve(t + 0.5 * h, s, se, y2, P, mode, k, p)
     for i in range(ny):
         y[i] = (y[i] + 2.0 * (y2[i] + h * k[i])) / 3.0
 
@@ -221,20 +233,28 @@ def substep(y, P, d, h, k, y1, y2, p):
         d[D_T_CLOSED] = d[D_T_S] + d[D_S] * P[P_RAMP]
     d[D_T] = t_new
 
-    # state check
+    # state check (one exit only: numba keeps reference counting around early returns)
+    status = STATUS_OK
     for i in range(ny):
         if not math.isfinite(y[i]):
-            d[D_STATUS] = STATUS_NONFINITE
-            return STATUS_NONFINITE
-    for i in range(n):
-        if y[i] <= 0.0:
-            d[D_STATUS] = STATUS_NONPOSITIVE
-            return STATUS_NONPOSITIVE
-    if y[b + Y_MD] <= 0.0 or y[b + Y_ME] <= 0.0 or y[b + Y_TD] <= 0.0 or y[b + Y_TE] <= 0.0:
-        d[D_STATUS] = STATUS_NONPOSITIVE
-        return STATUS_NONPOSITIVE
+            status = STATUS_NONFINITE
+    if status == STATUS_OK:
+        for i in range(n):
+            if y[i] <= 0.0:
+                status = STATUS_NONPOSITIVE
+        if y[b + Y_MD] <= 0.0 or y[b + Y_ME] <= 0.0 or y[b + Y_TD] <= 0.0 or y[b + Y_TE] <= 0.0:
+            status = STATUS_NONPOSITIVE
+    if status != STATUS_OK:
+        d[D_STATUS] = status
+    else:
+        _piston_events(y, P, d, h, t, b, mode, x_old, v_old)
+    return status
 
-    # piston events (a held piston keeps its exact position: RK3 rounding must not move it)
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _piston_events(y, P, d, h, t, b, mode, x_old, v_old):
+    """Stick/slip and end stops (Karnopp) at the end of a substep, then the sensor lag."""
+    # a held piston keeps its exact position: RK3 rounding must not move it
     if mode != MODE_MOVING:
         y[b + Y_X] = x_old
         y[b + Y_V] = 0.0
@@ -283,13 +303,12 @@ def substep(y, P, d, h, k, y1, y2, p):
     else:
         y[b + Y_SD] = pd
         y[b + Y_SE] = pe
-    return STATUS_OK
 
 
 # --------------------------------------------------------------------------------------------
 # drivers
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def record_row(y, P, d, out, q_in):
     """Write the recorded channels (layout ``R_*``) of the current state into ``out``."""
     n = int(P[P_NCELLS])
@@ -315,7 +334,7 @@ def record_row(y, P, d, out, q_in):
     out[R_MDOT] = q_in
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def supply_flow(y, P, d):
     """Mass flow from the supply into the line [kg/s] at the current state."""
     n = int(P[P_NCELLS])
@@ -323,11 +342,10 @@ def supply_flow(y, P, d):
     if s <= 0.0:
         return 0.0
     p0 = y[0] * P[P_R] * P[P_T] / P[NP]
-    return mass_flow(P[P_PS], p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
-                     P[P_OC:P_OC + NOC])
+    return flow_at(P[P_PS], p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T], P, P_OC)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     """Advance to time ``t_end`` [s] in substeps of at most ``P[P_DT]``.
 
@@ -349,6 +367,7 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     if rec_dt > 0.0:
         t_next = math.ceil(d[D_T] / rec_dt - 1e-9) * rec_dt
     eps = 1e-12
+    st = STATUS_OK
     while d[D_T] < t_end - eps:
         t = d[D_T]
         if rec_dt > 0.0 and nrec < mrec and t >= t_next - eps:
@@ -359,17 +378,15 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
         if rec_dt > 0.0 and nrec < mrec:
             h = min(h, t_next - t)
         st = substep(y, P, d, h, k, y1, y2, p)
-        if st != STATUS_OK:
-            return st, nrec
-        if stop_on_arrival and d[D_T_ARRIVE] >= 0.0:
+        if st != STATUS_OK or (stop_on_arrival and d[D_T_ARRIVE] >= 0.0):
             break
-    if rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:
+    if st == STATUS_OK and rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:
         record_row(y, P, d, rec[nrec], supply_flow(y, P, d))
         nrec += 1
-    return STATUS_OK, nrec
+    return st, nrec
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def advance_batch(Y, Ps, Ds, commands, duration, status):
     """Give each plant ``i`` the command ``commands[i]`` and advance it by ``duration`` [s].
 
@@ -385,7 +402,7 @@ def advance_batch(Y, Ps, Ds, commands, duration, status):
         status[i] = st
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def driving_side_energy(y, P):
     """Air potential energy [J] of the line cells and the driving chamber (thesis eq. 5.9)."""
     n = int(P[P_NCELLS])
@@ -401,7 +418,7 @@ def driving_side_energy(y, P):
     return e
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def total_air_mass(y, P):
     """Air mass in the line and both chambers [kg]."""
     n = int(P[P_NCELLS])
