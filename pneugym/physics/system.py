@@ -345,6 +345,12 @@ def supply_flow(y, P, d):
     return flow_at(P[P_PS], p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T], P, P_OC)
 
 
+def work_size(P):
+    """Length of the work array that :func:`advance_ws` needs for parameters ``P``."""
+    n = int(P[P_NCELLS])
+    return 3 * (2 * n - 1 + NY) + n
+
+
 @njit(cache=True, error_model="numpy")
 def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     """Advance to time ``t_end`` [s] in substeps of at most ``P[P_DT]``.
@@ -354,12 +360,20 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     If ``stop_on_arrival``, returns as soon as the piston first reaches the extended end.
     Returns ``(status, rows_written)``.
     """
+    w = np.empty(3 * y.shape[0] + int(P[P_NCELLS]))
+    return advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w):
+    """:func:`advance` with a caller-owned work array ``w`` (length :func:`work_size`), so that a
+    control loop allocates nothing."""
     ny = y.shape[0]
     n = int(P[P_NCELLS])
-    k = np.empty(ny)
-    y1 = np.empty(ny)
-    y2 = np.empty(ny)
-    p = np.empty(n)
+    k = w[0:ny]
+    y1 = w[ny:2 * ny]
+    y2 = w[2 * ny:3 * ny]
+    p = w[3 * ny:3 * ny + n]
     dt = P[P_DT]
     nrec = 0
     mrec = rec.shape[0]
@@ -386,20 +400,28 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     return st, nrec
 
 
+@njit(cache=True, error_model="numpy", _nrt=False)
+def command_advance(y, P, d, w, value, duration, stop_on_arrival):
+    """Give the valve command ``value`` (none if negative) and advance by ``duration`` [s]: the
+    control-level step in one call. ``w``: work array (:func:`work_size`). Returns the status."""
+    if value >= 0.0:
+        command(d, P, value)
+    norec = w[:0].reshape((0, NR))  # no recording (a view: nothing is allocated)
+    st, _ = advance_ws(y, P, d, d[D_T] + duration, norec, 0.0, stop_on_arrival, w)
+    return st
+
+
 @njit(cache=True, error_model="numpy", parallel=True)
-def advance_batch(Y, Ps, Ds, commands, duration, status):
+def advance_batch(Y, Ps, Ds, commands, duration, status, W):
     """Give each plant ``i`` the command ``commands[i]`` and advance it by ``duration`` [s].
 
-    ``Y`` (B, ny), ``Ps`` (B, np), ``Ds`` (B, nd) as in :mod:`layout`; plants with a non-zero
-    ``status[i]`` are skipped. Plants run in parallel (numba ``prange``)."""
+    ``Y`` (B, ny), ``Ps`` (B, np), ``Ds`` (B, nd) as in :mod:`layout`, ``W`` (B, work_size) work
+    arrays; plants with a non-zero ``status[i]`` are skipped. Plants run in parallel (numba
+    ``prange``)."""
     nb = Y.shape[0]
-    empty = np.empty((0, NR))
     for i in prange(nb):
-        if status[i] != 0:
-            continue
-        command(Ds[i], Ps[i], commands[i])
-        st, _ = advance(Y[i], Ps[i], Ds[i], Ds[i, D_T] + duration, empty, 0.0, False)
-        status[i] = st
+        if status[i] == 0:
+            status[i] = command_advance(Y[i], Ps[i], Ds[i], W[i], commands[i], duration, False)
 
 
 @njit(cache=True, error_model="numpy")
