@@ -197,8 +197,11 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
 # array arguments of the inlined kernels are not reference-counted (atomic increments and
 # decrements around every branch cost about a third of a substep). ``error_model="numpy"``
 # everywhere: a division by zero gives inf/NaN, which the state check below reports, instead
-# of a Python exception path in every division.
-@njit(cache=True, error_model="numpy", _nrt=False)
+# of a Python exception path in every division. ``fastmath={"contract"}`` only (fused
+# multiply-adds, ~5 % faster): no "nnan"/"ninf" (the state check needs isfinite) and no "arcp"
+# (x / 3 as x * 0.333... rounds the stage update unevenly and the mass balance drifts from
+# 1e-15 to 1e-12 relative).
+@njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
 def substep(y, P, d, h, k, y1, y2, p):
     """Advance by ``h`` [s] with SSP-RK3 (Shu-Osher), then apply the events: valve commands
     coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code."""
