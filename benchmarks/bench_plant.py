@@ -222,19 +222,26 @@ def first_call_costs(cold: bool):
     return out
 
 
-def interleaved(cases, reps):
+def interleaved(cases, reps, cpu=None):
     """Time several ``(name, fn, setup)`` cases round-robin (one call of each per round, after
-    one warm-up round), so that load from other processes hits every case alike."""
+    one warm-up round), so that load from other processes hits every case alike. If ``cpu`` is
+    a dict, it receives the same calls' CPU times of this thread (``time.thread_time``): a
+    single-threaded call's CPU time does not count the time the process waits for a core."""
     for _, fn, setup in cases:
         setup()
         fn()
     times = {name: [] for name, _, _ in cases}
+    if cpu is not None:
+        cpu.update({name: [] for name, _, _ in cases})
     for _ in range(reps):
         for name, fn, setup in cases:
             setup()
+            c0 = time.thread_time()
             t0 = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)
+            if cpu is not None:
+                cpu[name].append(time.thread_time() - c0)
     return times
 
 
@@ -261,7 +268,8 @@ def bench_rtf(reps):
 
         cases += [((bar, "advance"), adv, plant.reset), ((bar, "run"), run_rec, plant.reset),
                   ((bar, "loop"), control_loop, plant.reset)]
-    times = interleaved(cases, reps)
+    cpu = {}
+    times = interleaved(cases, reps, cpu)
     for bar, (plant, first) in plants.items():
         plant.reset()
         plant.advance(2.0, 1)
@@ -275,6 +283,12 @@ def bench_rtf(reps):
             "run_record_1ms": stats(t_run), "rtf_run_record_1ms": 2.0 / float(np.median(t_run)),
             "control_loop_5ms": stats(t_ctl), "rtf_control_loop_5ms": 2.0 / float(np.median(t_ctl)),
             "ns_per_substep_advance": float(np.median(t_adv)) / n_sub * 1e9,
+            "cpu_time": {"advance": stats(cpu[(bar, "advance")]),
+                         "rtf_advance": 2.0 / float(np.median(cpu[(bar, "advance")])),
+                         "control_loop_5ms": stats(cpu[(bar, "loop")]),
+                         "rtf_control_loop_5ms": 2.0 / float(np.median(cpu[(bar, "loop")])),
+                         "us_per_advance_5ms_call": float(np.median(cpu[(bar, "loop")])) / 400 * 1e6},
+            "us_per_advance_5ms_call": float(np.median(t_ctl)) / 400 * 1e6,
         }
     return res
 
@@ -541,7 +555,7 @@ def bench_batch(reps, quick):
     sizes = (64,) if quick else (64, 256)
     period, t_sim = 0.005, 1.5
     nper = int(round(t_sim / period))
-    res = {"control_period_s": period, "simulated_s": t_sim, "sizes": {}}
+    res = {"control_period_s": period, "simulated_s": t_sim, "control_periods": nper, "sizes": {}}
     nthreads_avail = numba.config.NUMBA_NUM_THREADS
     threads = [t for t in (1, 2) if t <= nthreads_avail]
     # single plant, same control loop, for comparison
@@ -553,7 +567,9 @@ def bench_batch(reps, quick):
 
     t_single = timeit(single, pl.reset, reps)
     res["single_plant_control_loop"] = {**stats(t_single),
-                                        "plant_s_per_wall_s": t_sim / float(np.median(t_single))}
+                                        "plant_s_per_wall_s": t_sim / float(np.median(t_single)),
+                                        "plant_steps_per_s": nper / float(np.median(t_single)),
+                                        "us_per_advance_5ms_call": float(np.median(t_single)) / nper * 1e6}
     y_single = pl.y.copy()
     for B in sizes:
         batch = PlantBatch([thesis_rig(2.5)] * B)
@@ -578,7 +594,9 @@ def bench_batch(reps, quick):
                 times[nt].append(time.perf_counter() - t0)
         for nt in threads:
             t = times[nt]
-            entry[f"{nt}_threads"] = {**stats(t), "plant_s_per_wall_s": B * t_sim / float(np.median(t))}
+            entry[f"{nt}_threads"] = {**stats(t), "plant_s_per_wall_s": B * t_sim / float(np.median(t)),
+                                      "plant_steps_per_s": B * nper / float(np.median(t)),
+                                      "plant_steps_per_s_min_time": B * nper / float(np.min(t))}
         numba.set_num_threads(nthreads_avail)
         if len(threads) == 2:
             entry["speedup_2_over_1"] = (entry["1_threads"]["median_s"] / entry["2_threads"]["median_s"])
@@ -874,12 +892,16 @@ def report(R):
             rows.append([k, g(e["dt_s"] * 1e6, 4), e["dt_limited_by"], e["substeps_advance"],
                          g(e["advance"]["median_s"] * 1e3, 4), g(e["rtf_advance"], 4),
                          g(e["rtf_run_record_1ms"], 4), g(e["rtf_control_loop_5ms"], 4),
-                         g(e["ns_per_substep_advance"], 4), g(e["arrival_time_s"], 6)])
+                         g(e["ns_per_substep_advance"], 4), g(e["us_per_advance_5ms_call"], 3),
+                         g(e["cpu_time"]["rtf_advance"], 4), g(e["cpu_time"]["us_per_advance_5ms_call"], 3),
+                         g(e["arrival_time_s"], 6)])
         out.append(fmt_table(["supply", "dt[us]", "dt limited by", "substeps", "advance 2s [ms]",
                               "RTF advance", "RTF run(rec 1ms)", "RTF 5ms-loop", "ns/substep",
+                              "us / advance(5ms)", "RTF advance (CPU)", "us / advance(5ms) (CPU)",
                               "arrival [s]"], rows,
                              f"a. Real-time factor, one plant, default configuration "
-                             f"(goal RTF >= {GOAL_RTF:.0f}); medians of {a['2.5bar']['advance']['n']} repeats"))
+                             f"(goal RTF >= {GOAL_RTF:.0f}); medians of {a['2.5bar']['advance']['n']} repeats; (CPU): "
+                             "this thread's CPU time, which does not count waiting for a core on a busy machine"))
         inproc = {k: e["first_call_in_process_s"] for k, e in a.items()}
         out.append("   first call in this process (cache load): "
                    + ", ".join(f"{k}: {v:.3f} s" for k, v in inproc.items()))
@@ -974,21 +996,25 @@ def report(R):
 
     if "batch" in R:
         bt = R["batch"]
-        rows = [["single Plant, 5 ms loop", "1", "-", g(bt["single_plant_control_loop"]["median_s"] * 1e3, 4),
-                 g(bt["single_plant_control_loop"]["plant_s_per_wall_s"], 4), "-", "-", "-"]]
+        sp = bt["single_plant_control_loop"]
+        rows = [["single Plant, 5 ms loop", "1", "-", g(sp["median_s"] * 1e3, 4), g(sp["plant_s_per_wall_s"], 4),
+                 g(sp["plant_steps_per_s"] / 1e3, 4), g(sp["us_per_advance_5ms_call"], 3), "-", "-", "-"]]
         for B, e in bt["sizes"].items():
             for key in ("1_threads", "2_threads"):
                 if key not in e:
                     continue
                 rows.append([f"PlantBatch B={B}", B, key.split("_")[0], g(e[key]["median_s"] * 1e3, 4),
-                             g(e[key]["plant_s_per_wall_s"], 4),
+                             g(e[key]["plant_s_per_wall_s"], 4), g(e[key]["plant_steps_per_s"] / 1e3, 4),
+                             g(1e6 / e[key]["plant_steps_per_s"], 3),
                              g(e.get("speedup_2_over_1"), 3) if key == "2_threads" else "",
                              g(e.get("speedup_2_over_1_min_times"), 3) if key == "2_threads" else "",
                              g(e["max_abs_diff_vs_single_plant"], 3) if key == "1_threads" else ""])
-        out.append(fmt_table(["case", "B", "threads", "wall [ms]", "plant-s / wall-s", "speed-up 2/1",
+        out.append(fmt_table(["case", "B", "threads", "wall [ms]", "plant-s / wall-s", "plant-steps/s [k]",
+                              "us / plant-step", "speed-up 2/1",
                               "speed-up 2/1 (min times)", "max|Y-Y_single|"], rows,
                              f"c. Batched kernel: 1.5 s simulated in 5 ms control periods "
-                             f"(threading layer {bt.get('threading_layer')})"))
+                             f"(threading layer {bt.get('threading_layer')}); a plant-step = one 5 ms "
+                             f"period of one plant (Plant.advance(0.005, 1) / PlantBatch.advance(cmds, 0.005))"))
 
     if "scipy" in R:
         sc = R["scipy"]

@@ -222,6 +222,7 @@ class Plant:
         self._b = 2 * self.n_cells - 1
         self.y = np.zeros(self._b + L.NY)
         self.d = np.zeros(L.ND)
+        self._work = np.empty(K.work_size(self.P))  # the kernels' scratch space, reused
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -295,11 +296,11 @@ class Plant:
     def advance(self, duration_s: float, command: int | None = None,
                 stop_on_arrival: bool = False) -> None:
         """Give ``command`` (if not None) and advance by ``duration_s`` [s] (control-level API)."""
-        if command is not None:
-            self.command(command)
-        st, _ = K.advance(self.y, self.P, self.d, self.time_s + duration_s, _NOREC, 0.0,
-                          stop_on_arrival)
-        self._check(st)
+        st = K.command_advance(self.y, self.P, self.d, self._work,
+                               -1.0 if command is None else float(command), float(duration_s),
+                               bool(stop_on_arrival))
+        if st:
+            self._check(st)
 
     def run(self, t_end: float, schedule: Iterable[tuple[float, int]] = ((0.0, 1),),
             record_dt: float = 1e-3, cut_on_arrival: bool = False) -> Trajectory:
@@ -318,7 +319,8 @@ class Plant:
         for t_stop in stops:
             while True:
                 stop = cut_on_arrival and self.arrival_time_s is None
-                st, nr = K.advance(self.y, self.P, self.d, t_stop, rec[nrec:], record_dt, stop)
+                st, nr = K.advance_ws(self.y, self.P, self.d, t_stop, rec[nrec:], record_dt, stop,
+                                      self._work)
                 nrec += nr
                 self._check(st)
                 if stop and self.arrival_time_s is not None:
@@ -487,7 +489,6 @@ class Plant:
                                  self.P[L.P_R], self.P[L.P_T]))
 
 
-_NOREC = np.zeros((0, L.NR))
 
 
 # ------------------------------------------------------------------------------------------
@@ -509,6 +510,7 @@ class PlantBatch:
         self.Y = np.stack([pl.y for pl in plants])
         self.D = np.stack([pl.d for pl in plants])
         self.status = np.zeros(len(plants), dtype=np.int64)
+        self.W = np.empty((len(plants), K.work_size(self.P[0])))
 
     def __len__(self) -> int:
         return self.Y.shape[0]
@@ -540,7 +542,7 @@ class PlantBatch:
         cmds = np.asarray(commands, dtype=np.float64)
         if cmds.shape != (len(self),):
             raise ValueError(f"commands must have shape ({len(self)},), got {cmds.shape}")
-        K.advance_batch(self.Y, self.P, self.D, cmds, float(duration_s), self.status)
+        K.advance_batch(self.Y, self.P, self.D, cmds, float(duration_s), self.status, self.W)
         bad = np.flatnonzero(self.status)
         if bad.size:
             i = int(bad[0])

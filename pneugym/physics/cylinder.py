@@ -9,7 +9,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cushion_factor(dist, length, factor, ramp):
     """Orifice-area factor at ``dist`` [m] from the cushioned end: ``factor`` inside the zone,
     1 outside, joined by a smoothstep of width ``ramp`` [m] centred on the zone's edge."""
@@ -24,7 +24,7 @@ def cushion_factor(dist, length, factor, ramp):
     return factor + (1.0 - factor) * s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def friction_force(v, f_drive, fc, kv, fstr, vstr):
     """Sliding friction [N] opposing ``v`` [m/s]; at ``v == 0`` it opposes the drive ``f_drive``."""
     sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (1.0 if f_drive >= 0.0 else -1.0))
@@ -36,7 +36,7 @@ def friction_force(v, f_drive, fc, kv, fstr, vstr):
     return sgn * f
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def enthalpy_flow(mdot_in, T_src, T, cp, cv, R):
     """Energy-equation term ``m c_v dT/dt`` [W] of a signed inflow ``mdot_in`` [kg/s]."""
     if mdot_in >= 0.0:
@@ -44,7 +44,7 @@ def enthalpy_flow(mdot_in, T_src, T, cp, cv, R):
     return mdot_in * R * T
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def chamber_dT(m, T, p, dVdt, heat_in, cv, T_wall, tau):
     """dT/dt [K/s] of a chamber: flows (``heat_in`` from :func:`enthalpy_flow`), work, wall heat
     transfer with time constant ``tau`` [s] (``hA = m c_v / tau``)."""

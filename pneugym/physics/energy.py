@@ -4,7 +4,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def potential_energy(p, V, pa):
     """Air potential energy [J] of volume ``V`` [m³] at ``p`` [Pa] (thesis eq. 5.9):
     the work of an isothermal expansion to ``pa``, ``p V (ln(p/pa) + pa/p - 1)``."""
@@ -13,7 +13,7 @@ def potential_energy(p, V, pa):
     return p * V * (math.log(p / pa) + pa / p - 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def flow_exergy(mass, p, pa, R, T):
     """Isothermal flow exergy [J] of ``mass`` [kg] of air delivered at ``p`` [Pa]: ``m R T ln(p/pa)``."""
     return mass * R * T * math.log(p / pa)

@@ -18,10 +18,10 @@ import math
 
 from numba import njit
 
-from .orifice import mass_flow
+from .orifice import flow_at
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def friction_factor(re):
     """Darcy friction factor of a smooth tube at Reynolds number ``re`` (>= 0)."""
     if re < 1e-12:
@@ -36,7 +36,7 @@ def friction_factor(re):
     return (1.0 - w) * (64.0 / 2300.0) + w * f4000
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def wall_friction(q, inv_rho, A, d, mu):
     """Wall-friction term of the face momentum equation [kg/s²] (sign opposes ``q``);
     ``inv_rho`` is the specific volume [m³/kg] at the face."""
@@ -47,7 +47,7 @@ def wall_friction(q, inv_rho, A, d, mu):
     return friction_factor(re) * q * aq * inv_rho / (2.0 * d * A)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _art_visc(dq_cell, inv_rho, inv_a, cq):
     """Artificial-viscosity pressure [Pa] of a cell whose face flows differ by ``dq_cell``."""
     if cq <= 0.0 or dq_cell >= 0.0:
@@ -56,61 +56,63 @@ def _art_visc(dq_cell, inv_rho, inv_a, cq):
     return cq * du * du / inv_rho
 
 
-@njit(cache=True)
-def fd_rhs(q, q_in, q_out, p, RT, A, dx, d, mu, cq, dm, dq, n):
+@njit(cache=True, error_model="numpy", inline="always")
+def fd_rhs(y, q_in, q_out, p, RT, A, dx, d, mu, cq, dy, n):
     """Right-hand side of the FD line.
 
-    ``p``: cell pressures [Pa]; ``RT`` [J/kg] (isothermal line, 1/ρ = RT/p); ``q``: interior face flows ``q[0..n-2]`` (face between cell j and j+1); ``q_in``/``q_out``:
-    boundary flows into cell 0 and out of cell n-1 [kg/s]. Writes ``dm`` (n) and ``dq`` (n-1).
+    ``y``: the state, laid out as in the plant: cell masses ``y[0..n-1]``, then the interior face
+    flows ``y[n + j]``, j = 0..n-2 (face between cell j and j+1); ``p``: cell pressures [Pa];
+    ``RT`` [J/kg] (isothermal line, 1/ρ = RT/p); ``q_in``/``q_out``: boundary flows into cell 0
+    and out of cell n-1 [kg/s]. Writes ``dy[0..n-1]`` (continuity) and ``dy[n..2n-2]`` (momentum).
     ``cq``: von Neumann-Richtmyer quadratic artificial viscosity, a pressure ``cq ρ Δu²`` added in
     compressing cells (``Δu < 0`` across the cell); O(dx²) where the flow is smooth, it keeps
     the scheme stable through the shocks of a sudden closure.
     """
     for i in range(n):  # continuity
-        qa = q_in if i == 0 else q[i - 1]
-        qb = q_out if i == n - 1 else q[i]
-        dm[i] = qa - qb
-    if n == 1:
-        return
-    inv_a = 1.0 / A
-    inv_dx = 1.0 / dx
-    # the n - 1 interior faces carry the wall friction of the whole length n dx (the end
-    # half-cells lie between a face and an orifice, where no momentum equation is solved)
-    fscale = n / (n - 1.0)
-    c43 = (4.0 / 3.0) * mu * inv_a * inv_dx
-    # specific volume from the pressure (isothermal: 1/ρ = RT/p), cell-centre flux and stress
-    inv_rho_l = RT / p[0]
-    qa = q_in
-    qb = q[0]
-    qc = 0.5 * (qa + qb)
-    flux_l = qc * qc * inv_rho_l * inv_a
-    tau_l = c43 * (qb - qa) * inv_rho_l
-    pq_l = p[0] + _art_visc(qb - qa, inv_rho_l, inv_a, cq)
-    for j in range(n - 1):
-        i = j + 1
-        qa = q[j]
-        qb = q_out if i == n - 1 else q[i]
-        inv_rho_r = RT / p[i]
+        qa = q_in if i == 0 else y[n + i - 1]
+        qb = q_out if i == n - 1 else y[n + i]
+        dy[i] = qa - qb
+    if n > 1:  # (no early return: it would keep numba's reference counting in the hot loop)
+        inv_a = 1.0 / A
+        inv_dx = 1.0 / dx
+        # the n - 1 interior faces carry the wall friction of the whole length n dx (the end
+        # half-cells lie between a face and an orifice, where no momentum equation is solved)
+        fscale = n / (n - 1.0)
+        c43 = (4.0 / 3.0) * mu * inv_a * inv_dx
+        # specific volume from the pressure (isothermal: 1/ρ = RT/p), cell-centre flux and stress
+        inv_rho_l = RT / p[0]
+        qa = q_in
+        qb = y[n]
         qc = 0.5 * (qa + qb)
-        flux_r = qc * qc * inv_rho_r * inv_a
-        tau_r = c43 * (qb - qa) * inv_rho_r
-        pq_r = p[i] + _art_visc(qb - qa, inv_rho_r, inv_a, cq)
-        dq[j] = (A * (pq_l - pq_r) - (flux_r - flux_l) + A * (tau_r - tau_l)) * inv_dx \
-            - fscale * wall_friction(qa, 0.5 * (inv_rho_l + inv_rho_r), A, d, mu)
-        flux_l = flux_r
-        tau_l = tau_r
-        pq_l = pq_r
-        inv_rho_l = inv_rho_r
+        flux_l = qc * qc * inv_rho_l * inv_a
+        tau_l = c43 * (qb - qa) * inv_rho_l
+        pq_l = p[0] + _art_visc(qb - qa, inv_rho_l, inv_a, cq)
+        for j in range(n - 1):
+            i = j + 1
+            qa = y[n + j]
+            qb = q_out if i == n - 1 else y[n + i]
+            inv_rho_r = RT / p[i]
+            qc = 0.5 * (qa + qb)
+            flux_r = qc * qc * inv_rho_r * inv_a
+            tau_r = c43 * (qb - qa) * inv_rho_r
+            pq_r = p[i] + _art_visc(qb - qa, inv_rho_r, inv_a, cq)
+            dy[n + j] = (A * (pq_l - pq_r) - (flux_r - flux_l) + A * (tau_r - tau_l)) * inv_dx \
+                - fscale * wall_friction(qa, 0.5 * (inv_rho_l + inv_rho_r), A, d, mu)
+            flux_l = flux_r
+            tau_l = tau_r
+            pq_l = pq_r
+            inv_rho_l = inv_rho_r
 
 
-@njit(cache=True)
-def lumped_rhs(p, q_in, q_out, cda, sqrt_T, oc, dm, n):
-    """Right-hand side of the lumped line: cells joined by orifices of effective area ``cda``."""
+@njit(cache=True, error_model="numpy", inline="always")
+def lumped_rhs(p, q_in, q_out, cda, sqrt_T, c, o, dy, n):
+    """Right-hand side of the lumped line: cells joined by orifices of effective area ``cda``
+    (orifice constants at ``c[o:o + NOC]``). Writes ``dy[0..n-1]``."""
     qa = q_in
     for i in range(n):
         if i == n - 1:
             qb = q_out
         else:
-            qb = mass_flow(p[i], p[i + 1], cda, sqrt_T, sqrt_T, oc)
-        dm[i] = qa - qb
+            qb = flow_at(p[i], p[i + 1], cda, sqrt_T, sqrt_T, c, o)
+        dy[i] = qa - qb
         qa = qb

@@ -28,30 +28,36 @@ OC_CM_LIN = 6     # flow parameter at r = 1 - lin
 NOC = 7
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cm_thesis(r, g_inv, ksub):
     a = math.exp(math.log(r) * g_inv)  # r^(1/γ)
     ct = ksub * (a * a - r * a)
     return math.sqrt(ct) if ct > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
+def flow_parameter_at(r, c, o):
+    """:func:`flow_parameter` with the constant block at ``c[o:o + NOC]``."""
+    # one exit only: numba cannot prune the reference counting of ``c`` past early returns
+    cm = c[o + OC_CM_STAR]
+    if c[o + OC_MODEL] == 0.0:
+        if r > R_CRIT:
+            cm = _cm_thesis(r, c[o + OC_GAMMA_INV], c[o + OC_KSUB])
+    else:
+        b = c[o + OC_B]
+        if r > b:
+            z = (r - b) / (1.0 - b)
+            cm = cm * math.sqrt(1.0 - z * z) if z < 1.0 else 0.0
+    return cm
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def flow_parameter(r, oc):
     """Flow parameter ``Cm(r)`` for ``r = p_dn/p_up`` in (0, 1]: ``mdot = CdA p_up Cm / sqrt(T_up)``."""
-    if oc[OC_MODEL] == 0.0:
-        if r <= R_CRIT:
-            return oc[OC_CM_STAR]
-        return _cm_thesis(r, oc[OC_GAMMA_INV], oc[OC_KSUB])
-    b = oc[OC_B]
-    if r <= b:
-        return oc[OC_CM_STAR]
-    z = (r - b) / (1.0 - b)
-    if z >= 1.0:
-        return 0.0
-    return oc[OC_CM_STAR] * math.sqrt(1.0 - z * z)
+    return flow_parameter_at(r, oc, 0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def orifice_constants(gamma, R, model, b, lin):
     """The constant block ``oc`` used by :func:`mass_flow`."""
     oc = np.zeros(NOC)
@@ -66,26 +72,35 @@ def orifice_constants(gamma, R, model, b, lin):
     return oc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
+def flow_at(p_a, p_b, cda, sqrt_Ta, sqrt_Tb, c, o):
+    """:func:`mass_flow` with the constant block at ``c[o:o + NOC]``: the plant's hot loop reads
+    it from the parameter array ``P`` directly instead of making a view of it."""
+    q = 0.0
+    if cda > 0.0:
+        if p_a >= p_b:
+            pu, pd, sT, sgn = p_a, p_b, sqrt_Ta, 1.0
+        else:
+            pu, pd, sT, sgn = p_b, p_a, sqrt_Tb, -1.0
+        r = pd / pu
+        k = cda * pu / sT
+        lin = c[o + OC_LIN]
+        if r > 1.0 - lin:
+            q = sgn * k * c[o + OC_CM_LIN] * (1.0 - r) / lin
+        else:
+            q = sgn * k * flow_parameter_at(r, c, o)
+    return q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def mass_flow(p_a, p_b, cda, sqrt_Ta, sqrt_Tb, oc):
     """Signed mass flow a -> b [kg/s] through effective area ``cda`` = Cd·A [m²].
 
     ``sqrt_Ta``, ``sqrt_Tb``: square roots of the temperatures [K] on each side."""
-    if cda <= 0.0:
-        return 0.0
-    if p_a >= p_b:
-        pu, pd, sT, sgn = p_a, p_b, sqrt_Ta, 1.0
-    else:
-        pu, pd, sT, sgn = p_b, p_a, sqrt_Tb, -1.0
-    r = pd / pu
-    k = cda * pu / sT
-    lin = oc[OC_LIN]
-    if r > 1.0 - lin:
-        return sgn * k * oc[OC_CM_LIN] * (1.0 - r) / lin
-    return sgn * k * flow_parameter(r, oc)
+    return flow_at(p_a, p_b, cda, sqrt_Ta, sqrt_Tb, oc, 0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def linear_conductance(p_up, cda, T, oc):
     """Largest |d mdot / d p_dn| [kg/(s Pa)] of the orifice at upstream pressure ``p_up``."""
     return cda / math.sqrt(T) * oc[OC_CM_LIN] / oc[OC_LIN]

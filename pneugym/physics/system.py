@@ -22,7 +22,7 @@ from .layout import (
     Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
 from .line import fd_rhs, lumped_rhs
-from .orifice import NOC, mass_flow
+from .orifice import flow_at
 
 
 #: Karnopp velocity dead band [m/s]: a decelerating piston slower than this sticks if |F| <= Fs.
@@ -32,7 +32,7 @@ V_STICK = 1e-5
 # --------------------------------------------------------------------------------------------
 # valve
 # --------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _ramp(s0, t0, target, tau, ramp):
     """Spool opening at ``tau`` moving from ``s0`` at ``t0`` towards ``target`` at 1/ramp per s."""
     ds = (tau - t0) / ramp
@@ -43,7 +43,7 @@ def _ramp(s0, t0, target, tau, ramp):
     return s0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def valve_opening(d, P, tau):
     """Main-valve opening [0, 1] and exhaust-path opening at time ``tau`` (>= d[D_T]).
 
@@ -64,7 +64,7 @@ def valve_opening(d, P, tau):
     return s, se
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def command(d, P, value):
     """Give the valve command ``value`` (1 = supply connected, 0 = cut off) at the current time.
     It takes effect after the valve delay ``P[P_DELAY]``."""
@@ -83,7 +83,7 @@ def command(d, P, value):
     d[D_NQ] = nq + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _pop_due_commands(d, P, t):
     """Make queued commands whose effective time is <= t the ramp in force."""
     while d[D_NQ] > 0 and d[D_Q0] <= t:
@@ -103,7 +103,7 @@ def _pop_due_commands(d, P, t):
 # --------------------------------------------------------------------------------------------
 # pressures and right-hand side
 # --------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def supply_pressure(P, tau):
     """Supply pressure [Pa] at time ``tau``: the set-point, minus an optional raised-cosine dip
     of ``P[P_DIP_DEPTH]`` times the gauge pressure, lasting ``P[P_DIP_DUR]`` from ``P[P_DIP_T0]``."""
@@ -116,7 +116,7 @@ def supply_pressure(P, tau):
     return ps
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def chamber_pressures(y, P, b):
     """Driving and exhaust chamber pressures [Pa] and volumes [m³] for state ``y``."""
     x = min(max(y[b + Y_X], 0.0), P[P_STROKE])
@@ -126,13 +126,19 @@ def chamber_pressures(y, P, b):
     return y[b + Y_MD] * R * y[b + Y_TD] / vd, y[b + Y_ME] * R * y[b + Y_TE] / ve, vd, ve
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rhs(tau, y, P, d, mode, dy, p):
     """dy/dt at time ``tau``; ``p`` (n) receives the line-cell pressures. Returns the supply flow."""
+    s, se = valve_opening(d, P, tau)
+    return rhs_valve(tau, s, se, y, P, mode, dy, p)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rhs_valve(tau, s, se, y, P, mode, dy, p):
+    """:func:`rhs` with the main-valve and exhaust-path openings ``s``, ``se`` given."""
     n = int(P[P_NCELLS])
     b = 2 * n - 1
     R, gam, T, pa = P[P_R], P[P_GAMMA], P[P_T], P[P_PA]
-    oc = P[P_OC:P_OC + NOC]
     sT = P[P_SQRT_T]
     RT = R * T
     for i in range(n):
@@ -143,26 +149,24 @@ def rhs(tau, y, P, d, mode, dy, p):
     sTd = sT if Td == T else math.sqrt(Td)
     sTe = sT if Te == T else math.sqrt(Te)
     stroke = P[P_STROKE]
-    s, se = valve_opening(d, P, tau)
 
     q_in = 0.0
     if s > 0.0:
-        q_in = mass_flow(supply_pressure(P, tau), p[0], s * P[P_CDA_VALVE], sT, sT, oc)
+        q_in = flow_at(supply_pressure(P, tau), p[0], s * P[P_CDA_VALVE], sT, sT, P, P_OC)
     fd = cushion_factor(x, P[P_CUSH_LEN], P[P_CUSH_FD], P[P_CUSH_RAMP])
     fe = cushion_factor(stroke - x, P[P_CUSH_LEN], P[P_CUSH_FE], P[P_CUSH_RAMP])
-    q_port = mass_flow(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, oc)
+    q_port = flow_at(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, P, P_OC)
     q_ex = 0.0
     if se > 0.0:
-        q_ex = mass_flow(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, oc)
-    q_ld = mass_flow(pd, pa, P[P_CDA_LEAK_D], sTd, sT, oc)
-    q_lp = mass_flow(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, oc)
+        q_ex = flow_at(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, P, P_OC)
+    q_ld = flow_at(pd, pa, P[P_CDA_LEAK_D], sTd, sT, P, P_OC)
+    q_lp = flow_at(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, P, P_OC)
 
     # line
     if P[P_LINE_MODEL] == 0.0:
-        fd_rhs(y[n:b], q_in, q_port, p, RT, P[P_LINE_A], P[P_DX],
-               P[P_LINE_D], P[P_MU], P[P_AV], dy[:n], dy[n:b], n)
+        fd_rhs(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV], dy, n)
     else:
-        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, oc, dy[:n], n)
+        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, P, P_OC, dy, n)
         for j in range(n, b):
             dy[j] = 0.0
 
@@ -202,7 +206,15 @@ def rhs(tau, y, P, d, mode, dy, p):
 # --------------------------------------------------------------------------------------------
 # one substep
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
+# The hot loop. ``_nrt=False``: the substep allocates nothing, and without numba's runtime the
+# array arguments of the inlined kernels are not reference-counted (atomic increments and
+# decrements around every branch cost about a third of a substep). ``error_model="numpy"``
+# everywhere: a division by zero gives inf/NaN, which the state check below reports, instead
+# of a Python exception path in every division. ``fastmath={"contract"}`` only (fused
+# multiply-adds, ~5 % faster): no "nnan"/"ninf" (the state check needs isfinite) and no "arcp"
+# (x / 3 as x * 0.333... rounds the stage update unevenly and the mass balance drifts from
+# 1e-15 to 1e-12 relative).
+@njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
 def substep(y, P, d, h, k, y1, y2, p):
     """Advance by ``h`` [s] with SSP-RK3 (Shu-Osher), then apply the events: valve commands
     coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code."""
@@ -214,13 +226,16 @@ def substep(y, P, d, h, k, y1, y2, p):
     v_old = y[b + Y_V]
     x_old = y[b + Y_X]
 
-    rhs(t, y, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t)
+    rhs_valve(t, s, se, y, P, mode, k, p)
     for i in range(ny):
         y1[i] = y[i] + h * k[i]
-    rhs(t + h, y1, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t + h)
+    rhs_valve(t + h, s, se, y1, P, mode, k, p)
     for i in range(ny):
         y2[i] = 0.75 * y[i] + 0.25 * (y1[i] + h * k[i])
-    rhs(t + 0.5 * h, y2, P, d, mode, k, p)
+    s, se = valve_opening(d, P, t + 0.5 * h)
+    rhs_valve(t + 0.5 * h, s, se, y2, P, mode, k, p)
     for i in range(ny):
         y[i] = (y[i] + 2.0 * (y2[i] + h * k[i])) / 3.0
 
@@ -234,20 +249,28 @@ def substep(y, P, d, h, k, y1, y2, p):
         d[D_T_CLOSED] = d[D_T_S] + d[D_S] * P[P_RAMP]
     d[D_T] = t_new
 
-    # state check
+    # state check (one exit only: numba keeps reference counting around early returns)
+    status = STATUS_OK
     for i in range(ny):
         if not math.isfinite(y[i]):
-            d[D_STATUS] = STATUS_NONFINITE
-            return STATUS_NONFINITE
-    for i in range(n):
-        if y[i] <= 0.0:
-            d[D_STATUS] = STATUS_NONPOSITIVE
-            return STATUS_NONPOSITIVE
-    if y[b + Y_MD] <= 0.0 or y[b + Y_ME] <= 0.0 or y[b + Y_TD] <= 0.0 or y[b + Y_TE] <= 0.0:
-        d[D_STATUS] = STATUS_NONPOSITIVE
-        return STATUS_NONPOSITIVE
+            status = STATUS_NONFINITE
+    if status == STATUS_OK:
+        for i in range(n):
+            if y[i] <= 0.0:
+                status = STATUS_NONPOSITIVE
+        if y[b + Y_MD] <= 0.0 or y[b + Y_ME] <= 0.0 or y[b + Y_TD] <= 0.0 or y[b + Y_TE] <= 0.0:
+            status = STATUS_NONPOSITIVE
+    if status != STATUS_OK:
+        d[D_STATUS] = status
+    else:
+        _piston_events(y, P, d, h, t, b, mode, x_old, v_old)
+    return status
 
-    # piston events (a held piston keeps its exact position: RK3 rounding must not move it)
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _piston_events(y, P, d, h, t, b, mode, x_old, v_old):
+    """Stick/slip and end stops (Karnopp) at the end of a substep, then the sensor lag."""
+    # a held piston keeps its exact position: RK3 rounding must not move it
     if mode != MODE_MOVING:
         y[b + Y_X] = x_old
         y[b + Y_V] = 0.0
@@ -296,13 +319,12 @@ def substep(y, P, d, h, k, y1, y2, p):
     else:
         y[b + Y_SD] = pd
         y[b + Y_SE] = pe
-    return STATUS_OK
 
 
 # --------------------------------------------------------------------------------------------
 # drivers
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def record_row(y, P, d, out, q_in):
     """Write the recorded channels (layout ``R_*``) of the current state into ``out``."""
     n = int(P[P_NCELLS])
@@ -328,7 +350,7 @@ def record_row(y, P, d, out, q_in):
     out[R_MDOT] = q_in
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def supply_flow(y, P, d):
     """Mass flow from the supply into the line [kg/s] at the current state."""
     n = int(P[P_NCELLS])
@@ -336,11 +358,17 @@ def supply_flow(y, P, d):
     if s <= 0.0:
         return 0.0
     p0 = y[0] * P[P_R] * P[P_T] / P[NP]
-    return mass_flow(supply_pressure(P, d[D_T]), p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
-                     P[P_OC:P_OC + NOC])
+    return flow_at(supply_pressure(P, d[D_T]), p0, s * P[P_CDA_VALVE], P[P_SQRT_T], P[P_SQRT_T],
+                   P, P_OC)
 
 
-@njit(cache=True)
+def work_size(P):
+    """Length of the work array that :func:`advance_ws` needs for parameters ``P``."""
+    n = int(P[P_NCELLS])
+    return 3 * (2 * n - 1 + NY) + n
+
+
+@njit(cache=True, error_model="numpy")
 def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     """Advance to time ``t_end`` [s] in substeps of at most ``P[P_DT]``.
 
@@ -349,12 +377,20 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     If ``stop_on_arrival``, returns as soon as the piston first reaches the extended end.
     Returns ``(status, rows_written)``.
     """
+    w = np.empty(3 * y.shape[0] + int(P[P_NCELLS]))
+    return advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w):
+    """:func:`advance` with a caller-owned work array ``w`` (length :func:`work_size`), so that a
+    control loop allocates nothing."""
     ny = y.shape[0]
     n = int(P[P_NCELLS])
-    k = np.empty(ny)
-    y1 = np.empty(ny)
-    y2 = np.empty(ny)
-    p = np.empty(n)
+    k = w[0:ny]
+    y1 = w[ny:2 * ny]
+    y2 = w[2 * ny:3 * ny]
+    p = w[3 * ny:3 * ny + n]
     dt = P[P_DT]
     nrec = 0
     mrec = rec.shape[0]
@@ -362,6 +398,7 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     if rec_dt > 0.0:
         t_next = math.ceil(d[D_T] / rec_dt - 1e-9) * rec_dt
     eps = 1e-12
+    st = STATUS_OK
     while d[D_T] < t_end - eps:
         t = d[D_T]
         if rec_dt > 0.0 and nrec < mrec and t >= t_next - eps:
@@ -372,33 +409,39 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
         if rec_dt > 0.0 and nrec < mrec:
             h = min(h, t_next - t)
         st = substep(y, P, d, h, k, y1, y2, p)
-        if st != STATUS_OK:
-            return st, nrec
-        if stop_on_arrival and d[D_T_ARRIVE] >= 0.0:
+        if st != STATUS_OK or (stop_on_arrival and d[D_T_ARRIVE] >= 0.0):
             break
-    if rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:
+    if st == STATUS_OK and rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:
         record_row(y, P, d, rec[nrec], supply_flow(y, P, d))
         nrec += 1
-    return STATUS_OK, nrec
+    return st, nrec
 
 
-@njit(cache=True, parallel=True)
-def advance_batch(Y, Ps, Ds, commands, duration, status):
+@njit(cache=True, error_model="numpy", _nrt=False)
+def command_advance(y, P, d, w, value, duration, stop_on_arrival):
+    """Give the valve command ``value`` (none if negative) and advance by ``duration`` [s]: the
+    control-level step in one call. ``w``: work array (:func:`work_size`). Returns the status."""
+    if value >= 0.0:
+        command(d, P, value)
+    norec = w[:0].reshape((0, NR))  # no recording (a view: nothing is allocated)
+    st, _ = advance_ws(y, P, d, d[D_T] + duration, norec, 0.0, stop_on_arrival, w)
+    return st
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def advance_batch(Y, Ps, Ds, commands, duration, status, W):
     """Give each plant ``i`` the command ``commands[i]`` and advance it by ``duration`` [s].
 
-    ``Y`` (B, ny), ``Ps`` (B, np), ``Ds`` (B, nd) as in :mod:`layout`; plants with a non-zero
-    ``status[i]`` are skipped. Plants run in parallel (numba ``prange``)."""
+    ``Y`` (B, ny), ``Ps`` (B, np), ``Ds`` (B, nd) as in :mod:`layout`, ``W`` (B, work_size) work
+    arrays; plants with a non-zero ``status[i]`` are skipped. Plants run in parallel (numba
+    ``prange``)."""
     nb = Y.shape[0]
-    empty = np.empty((0, NR))
     for i in prange(nb):
-        if status[i] != 0:
-            continue
-        command(Ds[i], Ps[i], commands[i])
-        st, _ = advance(Y[i], Ps[i], Ds[i], Ds[i, D_T] + duration, empty, 0.0, False)
-        status[i] = st
+        if status[i] == 0:
+            status[i] = command_advance(Y[i], Ps[i], Ds[i], W[i], commands[i], duration, False)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def driving_side_energy(y, P):
     """Air potential energy [J] of the line cells and the driving chamber (thesis eq. 5.9)."""
     n = int(P[P_NCELLS])
@@ -414,7 +457,7 @@ def driving_side_energy(y, P):
     return e
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def valve_closed(d, P):
     """True when the main valve is fully closed and no opening is pending."""
     s, se = valve_opening(d, P, d[D_T])
@@ -426,7 +469,7 @@ def valve_closed(d, P):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def filled_energy(P, x):
     """Potential energy [J] of the driving side filled to the supply set-point with the piston
     at ``x`` [m] (the closed form of a conventional stroke)."""
@@ -437,7 +480,7 @@ def filled_energy(P, x):
     return potential_energy(P[P_PS], vol, P[P_PA])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def energy_wasted(y, P, d):
     """Energy [J] wasted if the return stroke began now (thesis 5.5-5.7): the driving side filled
     to supply pressure while the supply is (or will be) connected, else the trapped air."""
@@ -447,7 +490,7 @@ def energy_wasted(y, P, d):
     return driving_side_energy(y, P)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def max_drive_force(y, P):
     """Largest net force [N] the driving-side air can still push with if no more air comes in:
     line and driving chamber equalised, exhaust vented to ambient. A stuck piston whose
@@ -462,7 +505,7 @@ def max_drive_force(y, P):
     return (m * P[P_R] * P[P_T] / vol - P[P_PA]) * P[P_AP]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def total_air_mass(y, P):
     """Air mass in the line and both chambers [kg]."""
     n = int(P[P_NCELLS])

@@ -16,7 +16,7 @@ from .line import fd_rhs, lumped_rhs
 from .orifice import NOC, mass_flow
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _boundary(kind, value, cda, p_cell, left, sT, oc):
     if kind == 1:
         return value
@@ -27,7 +27,7 @@ def _boundary(kind, value, cda, p_cell, left, sT, oc):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def line_rhs(y, P, bc, dy, p):
     n = int(P[P_NCELLS])
     RT = P[P_R] * P[P_T]
@@ -38,15 +38,14 @@ def line_rhs(y, P, bc, dy, p):
     q_in = _boundary(bc[0], bc[1], bc[2], p[0], True, sT, oc)
     q_out = _boundary(bc[3], bc[4], bc[5], p[n - 1], False, sT, oc)
     if P[P_LINE_MODEL] == 0.0:
-        fd_rhs(y[n:2 * n - 1], q_in, q_out, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV],
-               dy[:n], dy[n:2 * n - 1], n)
+        fd_rhs(y, q_in, q_out, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV], dy, n)
     else:
-        lumped_rhs(p, q_in, q_out, P[P_CDA_LINE], sT, oc, dy[:n], n)
+        lumped_rhs(p, q_in, q_out, P[P_CDA_LINE], sT, P, P_OC, dy, n)
         for j in range(n, 2 * n - 1):
             dy[j] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def line_run(y, P, bc, dt, t_end, rec_every):
     """Step the line to ``t_end`` [s] with substep ``dt``; every ``rec_every`` substeps record
     the cell pressures. Returns ``(times, pressures (m, n))``; ``y`` is updated in place."""
