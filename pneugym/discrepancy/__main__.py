@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--candidates", default=",".join(CANDIDATES),
                     help=f"comma-separated candidate effects (default: {','.join(CANDIDATES)})")
     ap.add_argument("--starts", type=int, default=4, help="least-squares starts per fit (default 4)")
-    ap.add_argument("--probe", type=int, default=16, help="start points screened per fit (default 16)")
+    ap.add_argument("--probe", type=int, default=24, help="start points screened per fit (default 24)")
     ap.add_argument("--max-nfev", type=int, default=40, help="iterations per start (default 40)")
     ap.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
     ap.add_argument("--min-improvement", type=float, default=0.1,

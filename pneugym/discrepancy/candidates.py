@@ -94,12 +94,13 @@ def read(rig: RigParams, path: str) -> float:
 
 def nominal_params(rig: RigParams) -> tuple[FitParam, ...]:
     """The nominal parameters calibrated before any effect (issue step 2), around the values
-    ``rig`` states: orifice discharge coefficient (all orifices), static (breakaway), Coulomb
-    and viscous friction; log-scaled (one unit = 10 %), within physical bounds."""
+    ``rig`` states: orifice discharge coefficient of all orifices (0.5x to 1.3x the stated
+    value, at most 1), static (breakaway), Coulomb and viscous friction; log-scaled (one
+    unit = 10 %), within physical bounds."""
     cd = rig.valve.discharge_coefficient
     fr = rig.friction
-    out = [FitParam("valve.discharge_coefficient", 0.2, 1.0, min(cd, 1.0), log=True, log_step=0.1,
-                    unit="-")]
+    out = [FitParam("valve.discharge_coefficient", 0.5 * cd, min(1.0, 1.3 * cd), cd, log=True,
+                    log_step=0.1, unit="-")]
     for name, val, default, lo_f, hi_f in (("static_n", fr.static_n, 359.0, 1 / 3, 3.0),
                                            ("coulomb_n", fr.coulomb_n, 126.0, 0.05, 4.0),
                                            ("viscous_n_s_per_m", fr.viscous_n_s_per_m, 1557.0, 0.02, 5.0)):

@@ -20,15 +20,28 @@ from scipy.optimize import least_squares
 
 from ..data import MeasuredRun
 from ..params import RigParams
-from ..plant import SimulationError
+from ..plant import SimulationError, choose_dt
 from .candidates import FitParam, apply
 from .residuals import channels_of, replay
 
 #: residual (in sigma) given to every sample when the plant fails for a trial parameter set
 FAILED_RESIDUAL = 1e4
 #: default finite-difference step of the Jacobian, in transformed units (see FitParam):
-#: 0.01 = 0.1 % of a log parameter (log_step 0.1), 1 % of a linear one's reference
-DIFF_STEP = 0.01
+#: 0.05 = 0.5 % of a log parameter (log_step 0.1), 5 % of a linear one's reference. The plant
+#: resolves stick/slip events to a substep, so the SSR has fine stairs; a step spanning
+#: several of them gives a useful gradient.
+DIFF_STEP = 0.05
+#: least-squares restarts from the last solution while they improve the SSR by > 1 %: the
+#: trust region of a rough objective collapses early (``xtol``), a restart re-opens it
+RESTARTS = 3
+
+
+def fixed_step(rig: RigParams, cd_max: float) -> RigParams:
+    """``rig`` with the substep fixed at the stable one for the largest discharge coefficient
+    the fit may try, so that every trial runs on the same time grid (an automatic substep
+    would change with the discharge coefficient and jitter the residuals)."""
+    dt, _ = choose_dt(rig.with_(valve={"discharge_coefficient": cd_max}))
+    return rig.with_(solver={"dt_s": dt})
 
 
 class Problem:
@@ -92,7 +105,7 @@ class Job:
     sigma: dict
     params: tuple
     start: np.ndarray  # natural units
-    max_nfev: int
+    max_nfev: int  # per least-squares run (restarts included separately)
 
 
 def solve(job: Job) -> tuple[np.ndarray, float, np.ndarray, int]:
@@ -103,10 +116,16 @@ def solve(job: Job) -> tuple[np.ndarray, float, np.ndarray, int]:
     u0 = np.array([p.to_u(v) for p, v in zip(prob.params, job.start)])
     u0 = np.clip(u0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
     step = np.array([p.diff_step or DIFF_STEP for p in prob.params])
-    sol = least_squares(prob.residuals, u0, bounds=(lo, hi), method="trf", x_scale=1.0,
-                        diff_step=step, max_nfev=job.max_nfev, ftol=1e-6, xtol=1e-6,
-                        gtol=1e-8)
-    return sol.x, float(2.0 * sol.cost), sol.jac, int(sol.nfev)
+    nfev, prev = 0, np.inf
+    for _ in range(1 + RESTARTS):
+        sol = least_squares(prob.residuals, u0, bounds=(lo, hi), method="trf", x_scale=1.0,
+                            diff_step=step, max_nfev=job.max_nfev, ftol=1e-6, xtol=1e-6,
+                            gtol=1e-8)
+        nfev += int(sol.nfev)
+        if 2.0 * sol.cost > 0.99 * prev:
+            break
+        prev, u0 = 2.0 * sol.cost, np.clip(sol.x, lo, hi)
+    return sol.x, float(2.0 * sol.cost), sol.jac, nfev
 
 
 class Executor:

@@ -27,7 +27,7 @@ from ..data import MeasuredRun, read_runs
 from ..params import RigParams
 from ..plant import SimulationError
 from .candidates import CANDIDATES, Candidate, FitParam, apply, nominal_params, read, separating_experiment
-from .fit import Executor, FitResult, Job, Problem, best_of, solve
+from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
 from .residuals import (Finding, RunPhases, channels_of, estimate_noise, localise, nrmse, replay,
                         run_phases)
 from .stats import f_test, inflation, lr_test, standard_errors
@@ -100,7 +100,7 @@ class Discrepancy:
     """
 
     def __init__(self, candidates: Iterable[str | Candidate] | None = None, holdout: str | None = "auto",
-                 n_starts: int = 4, n_probe: int = 16, max_nfev: int = 40, alpha: float = 0.01,
+                 n_starts: int = 4, n_probe: int = 24, max_nfev: int = 40, alpha: float = 0.01,
                  min_improvement: float = 0.1, z_min: float = 3.0, seed: int = 0,
                  n_jobs: int | None = 1, progress: bool = False):
         cands = []
@@ -154,8 +154,13 @@ class Discrepancy:
         hold = self._choose_holdout()
         self.holdout_runs_ = [r for r in runs if r.name == hold]
         self.fit_runs_ = [r for r in runs if r.name != hold]
+        nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)])
+        self.nominal_params_ = nom
+        # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
+        # use the rigs as the plant builds them (automatic substep)
+        self._fixed = [fixed_step(g, nom[0].hi) for g in self.rigs_]
         fit_idx = [i for i, r in enumerate(runs) if r.name != hold]
-        fit_bases = [self.rigs_[i] for i in fit_idx]
+        fit_bases = [self._fixed[i] for i in fit_idx]
         rng = np.random.default_rng(self.seed)
         executor = Executor(self.n_jobs)
         total = self.n_starts * (1 + len(self.candidates))
@@ -163,8 +168,6 @@ class Discrepancy:
         try:
             # (1) nominal replay, (2) calibration of the nominal parameters
             self.sims_ = {"nominal": [replay(r, g) for r, g in zip(runs, self.rigs_)]}
-            nom = nominal_params(fit_bases[0])
-            self.nominal_params_ = nom
             json_vals = np.array([read(fit_bases[0], p.path) for p in nom])
             prob = Problem(self.fit_runs_, fit_bases, self.sigma_, nom)
             starts = self._starts(prob, [json_vals], [nom], rng)
@@ -173,9 +176,8 @@ class Discrepancy:
                                        for s in starts], bar.update)
             self.calibrated_: FitResult = best_of(prob, res)
             cal_vals = self.calibrated_.values
-            all_prob = Problem(runs, self.rigs_, self.sigma_, nom)
-            self.sims_["calibrated"] = all_prob.simulate(cal_vals)
-            seg0 = all_prob.segments(cal_vals)
+            self.sims_["calibrated"] = Problem(runs, self.rigs_, self.sigma_, nom).simulate(cal_vals)
+            seg0 = Problem(runs, self._fixed, self.sigma_, nom).segments(cal_vals)
             # (3) localisation
             self.findings_ = {m: localise(runs, self.sims_[m], self.phases_, self.sigma_)
                               for m in ("nominal", "calibrated")}
@@ -264,7 +266,7 @@ class Discrepancy:
     def _judge(self, cand: Candidate, fr: FitResult, seg0) -> CandidateResult:
         """Statistics and checks of one fitted candidate against the calibrated model."""
         nom = self.nominal_params_
-        all_prob = Problem(self.runs_, self.rigs_, self.sigma_, fr.params)
+        all_prob = Problem(self.runs_, self._fixed, self.sigma_, fr.params)
         try:
             segs = all_prob.segments(fr.values)
         except (SimulationError, ValueError):

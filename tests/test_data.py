@@ -1,0 +1,240 @@
+"""Measured runs (pneugym.data): round trip, strict validation with file/row/key in every
+refusal, and the simulated export (noise, lag, sampling, valve column)."""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pneugym import Plant, thesis_rig
+from pneugym.data import (FORMAT, MeasuredRun, MeasurementFormatError, read_run, read_runs,
+                          simulate_run, thesis_protocol, write_run)
+from pneugym.discrepancy.residuals import replay
+
+
+@pytest.fixture(scope="module")
+def clean_run() -> MeasuredRun:
+    """A short noise-free conventional run at 1 kHz with every optional column."""
+    return simulate_run(thesis_rig(2.5), t_end=0.6, noise=None, name="clean",
+                        optional=("p_supply", "mdot_supply", "T_drive"))
+
+
+@pytest.fixture()
+def run_files(tmp_path, clean_run) -> Path:
+    return write_run(clean_run, tmp_path / "clean")
+
+
+def _rewrite_csv(stem: Path, edit) -> None:
+    p = stem.with_suffix(".csv")
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join(edit(lines)) + "\n")
+
+
+def _rewrite_json(stem: Path, edit) -> None:
+    p = stem.with_suffix(".json")
+    meta = json.loads(p.read_text())
+    edit(meta)
+    p.write_text(json.dumps(meta))
+
+
+def _refused(stem: Path, *patterns: str) -> str:
+    with pytest.raises(MeasurementFormatError) as e:
+        read_run(stem)
+    msg = str(e.value)
+    for pat in patterns:
+        assert re.search(pat, msg), f"{pat!r} not in {msg!r}"
+    return msg
+
+
+# -- round trip ----------------------------------------------------------------------------
+def test_round_trip_is_exact(run_files, clean_run):
+    back = read_run(run_files)
+    assert back.name == "clean" and back.source == run_files
+    assert set(back.columns) == set(clean_run.columns)
+    for c, a in clean_run.columns.items():
+        np.testing.assert_array_equal(back.columns[c], a, err_msg=c)
+    assert back.meta["format"] == FORMAT
+    assert back.meta["rig"] == json.loads(json.dumps(clean_run.meta["rig"]))
+
+
+@pytest.mark.parametrize("suffix", ["", ".csv", ".json"])
+def test_read_by_stem_csv_or_json(run_files, suffix):
+    assert len(read_run(str(run_files) + suffix)) == 601
+
+
+def test_read_folder_sorted_and_unique_names(tmp_path):
+    for name in ("b", "a"):
+        write_run(simulate_run(thesis_rig(2.5), t_end=0.05, noise=None, name=name), tmp_path / name)
+    (tmp_path / "notes.json").write_text("{}")  # a JSON without a CSV in a folder is not a run
+    runs = read_runs([tmp_path])
+    assert [r.name for r in runs] == ["a", "b"]
+    with pytest.raises(MeasurementFormatError, match="unique"):
+        read_runs([tmp_path / "a", tmp_path / "a.csv"])
+    with pytest.raises(MeasurementFormatError, match="no run"):
+        read_runs([tmp_path / "empty"] if (tmp_path / "empty").mkdir() is None else [])
+
+
+def test_unknown_columns_and_keys_are_kept_and_ignored(run_files):
+    _rewrite_csv(run_files, lambda ls: [ls[0] + ",operator,temp_note"]
+                 + [l + ",42,ok" for l in ls[1:]])
+    _rewrite_json(run_files, lambda m: m.update(lab="B12", rig={**m["rig"], "colour": "blue"}))
+    run = read_run(run_files)
+    assert np.all(run.extra["operator"] == 42.0) and run.extra["temp_note"][0] == "ok"
+    assert run.meta["lab"] == "B12"
+    assert run.rig().cylinder.bore_m == 0.125
+
+
+# -- refusals: every message names the file and the row or key -------------------------------
+def test_missing_json_or_csv(run_files):
+    run_files.with_suffix(".json").unlink()
+    _refused(run_files, re.escape(str(run_files.with_suffix(".json"))), "not found", "refused")
+    run_files.with_suffix(".csv").unlink()
+    _refused(run_files, re.escape(str(run_files.with_suffix(".csv"))), "not found")
+
+
+def _set_cell(lines: list[str], k: int, column: str, value: str) -> list[str]:
+    """Lines with the cell of line index ``k`` (0 = header) in ``column`` replaced."""
+    i = lines[0].split(",").index(column)
+    f = lines[k].split(",")
+    f[i] = value
+    return lines[:k] + [",".join(f)] + lines[k + 1:]
+
+
+@pytest.mark.parametrize("edit, patterns", [
+    (lambda ls: [ls[0].replace("p_exhaust", "p_exh")] + ls[1:], [r"line 1", r"missing required column.*p_exhaust"]),
+    (lambda ls: [ls[0] + ",t"] + [l + ",0" for l in ls[1:]], [r"line 1", r"appear twice"]),
+    (lambda ls: _set_cell(ls, 5, "x", "abc"), [r"line 6", r"column 'x'", r"not a number"]),
+    (lambda ls: _set_cell(ls, 7, "p_drive", "nan"), [r"line 8", r"column 'p_drive'", r"not finite"]),
+    (lambda ls: ls[:10] + [ls[10] + ",1"] + ls[11:], [r"line 11", r"fields"]),
+    (lambda ls: ls[:20] + [ls[19]] + ls[21:], [r"line 21", r"column 't'", r"increase"]),
+    (lambda ls: ls[:30] + ls[31:], [r"line 31", r"uniform sampling"]),
+    (lambda ls: ls[:1], [r"at least 2 samples"]),
+    (lambda ls: [], [r"empty file"]),
+])
+def test_csv_refusals(run_files, edit, patterns):
+    _rewrite_csv(run_files, edit)
+    _refused(run_files, re.escape(str(run_files.with_suffix(".csv"))), *patterns)
+
+
+def _scale_column(name: str, factor: float, offset: float = 0.0):
+    def edit(ls):
+        i = ls[0].split(",").index(name)
+        out = [ls[0]]
+        for l in ls[1:]:
+            f = l.split(",")
+            f[i] = repr(float(f[i]) * factor + offset)
+            out.append(",".join(f))
+        return out
+    return edit
+
+
+@pytest.mark.parametrize("column, factor, offset, pattern", [
+    ("p_exhaust", 1e-5, 0.0, r"p_exhaust.*bar or gauge"),  # bar instead of Pa
+    ("p_drive", 1.0, -101325.0, r"line 2, column 'p_drive'.*bar or gauge"),  # gauge: 0 Pa at rest
+    ("p_supply", 10.0, 0.0, r"p_supply.*2e\+06"),
+    ("x", 1000.0, 0.0, r"column 'x'.*mm by mistake"),
+    ("T_drive", 1.0, -273.15, r"T_drive.*°C"),
+    ("valve", 0.5, 0.0, r"valve.*0 or 1"),
+])
+def test_value_refusals(run_files, column, factor, offset, pattern):
+    _rewrite_csv(run_files, _scale_column(column, factor, offset))
+    _refused(run_files, r"line \d+", pattern)
+
+
+@pytest.mark.parametrize("edit, pattern", [
+    (lambda m: m.pop("format"), r"key 'format'"),
+    (lambda m: m.update(format="pneugym-measurement/2"), r"key 'format'.*pneugym-measurement/1"),
+    (lambda m: m.pop("supply_pressure_gauge_pa"), r"supply_pressure_gauge_pa' is missing"),
+    (lambda m: m.update(supply_pressure_gauge_pa=2.5), r"supply_pressure_gauge_pa.*bar by mistake"),
+    (lambda m: m.update(load_mass_kg="10"), r"load_mass_kg.*finite number"),
+    (lambda m: m.update(ambient_temperature_k=20.0), r"ambient_temperature_k.*°C"),
+    (lambda m: m.update(sample_rate_hz=500.0), r"sampled at 1000 Hz.*sample_rate_hz.*500"),
+    (lambda m: m["rig"].update(bore_m=-0.1), r"rig\.bore_m"),
+    (lambda m: m["rig"].update(friction=[1, 2]), r"rig\.friction. must be an object"),
+    (lambda m: m["rig"]["friction"].update(coulomb_n=None), r"rig\.friction\.coulomb_n"),
+    (lambda m: m["rig"].update(rod_m=0.2), r"rig it describes is invalid.*rod_m"),
+    (lambda m: m.update(rig=5), r"key 'rig' must be an object"),
+    (lambda m: m.update(description=3), r"description"),
+])
+def test_json_refusals(run_files, edit, pattern):
+    _rewrite_json(run_files, edit)
+    _refused(run_files, re.escape(str(run_files.with_suffix(".json"))), pattern)
+
+
+def test_invalid_json_text(run_files):
+    run_files.with_suffix(".json").write_text("{\"format\": ")
+    _refused(run_files, "not valid JSON")
+    run_files.with_suffix(".json").write_text("[1, 2]")
+    _refused(run_files, "JSON object")
+    run_files.with_suffix(".json").write_text('{"format": "pneugym-measurement/1", "supply_pressure_gauge_pa": NaN}')
+    _refused(run_files, "NaN")
+
+
+def test_partial_rig_takes_the_default(run_files):
+    _rewrite_json(run_files, lambda m: m.update(rig={"stroke_m": 0.2}))
+    rig = read_run(run_files).rig()
+    assert rig.cylinder.stroke_m == 0.2
+    assert rig.cylinder.bore_m == thesis_rig(2.5).cylinder.bore_m
+    _rewrite_json(run_files, lambda m: m.pop("rig"))
+    assert read_run(run_files).rig().line == thesis_rig(2.5).line
+
+
+# -- simulated export --------------------------------------------------------------------------
+def test_noise_is_seeded_and_at_the_requested_level():
+    rig = thesis_rig(2.5)
+    a = simulate_run(rig, t_end=1.0, noise="default", seed=7)
+    b = simulate_run(rig, t_end=1.0, noise="default", seed=7)
+    c = simulate_run(rig, t_end=1.0, noise="default", seed=8)
+    clean = simulate_run(rig, t_end=1.0, noise=None)
+    np.testing.assert_array_equal(a.p_drive, b.p_drive)
+    assert not np.array_equal(a.p_drive, c.p_drive)
+    assert np.std(a.p_drive - clean.p_drive) == pytest.approx(400.0, rel=0.1)
+    assert np.std(a.x - clean.x) == pytest.approx(3e-5, rel=0.1)
+    np.testing.assert_array_equal(a.t, clean.t)
+
+
+def test_sampling_and_sensor_lag():
+    rig = thesis_rig(2.5)
+    r = simulate_run(rig, t_end=0.5, sample_rate_hz=500.0, sensor_lag_s=0.015, noise=None)
+    assert r.sample_dt_s == pytest.approx(2e-3) and len(r) == 251
+    assert r.meta["sample_rate_hz"] == 500.0
+    lagged = Plant(rig.with_(effects={"sensor_lag_s": 0.015})).run(0.5, record_dt=2e-3)
+    np.testing.assert_allclose(r.p_drive, lagged["p_drive_sensor"])
+    assert np.max(np.abs(r.p_drive - lagged["p_drive"])) > 1e4  # the lag matters on the rise
+
+
+def test_valve_column_and_cut_on_arrival_replay_exactly():
+    rig = thesis_rig(2.5)
+    r = simulate_run(rig, t_end=1.6, cut_on_arrival=True, noise=None)
+    arrival = r.meta["simulation"]["arrival_time_s"]
+    sched = r.schedule()
+    assert sched[0] == (0.0, 1) and sched[1][1] == 0
+    assert arrival <= sched[1][0] < arrival + 1e-3 + 1e-12  # the first sample at/after arrival
+    sim = replay(r, rig)  # replaying the CSV's command reproduces the run exactly
+    for c in ("x", "p_drive", "p_exhaust"):
+        np.testing.assert_allclose(sim[c], getattr(r, c), rtol=0, atol=1e-9 * np.abs(getattr(r, c)).max())
+
+
+def test_known_rig_is_what_the_json_states():
+    truth = thesis_rig(2.5, friction={"coulomb_n": 150.0}, effects={"leak_drive_area_m2": 1e-7})
+    known = thesis_rig(2.5)
+    runs = thesis_protocol(truth, known, t_end=2.0)
+    assert [r.description for r in runs] == ["conventional", "end_stroke_cutoff", "early_cutoff"]
+    for r in runs:
+        assert r.rig().with_(valve={"delay_s": None}) == known
+        assert r.rig().valve_delay_s == known.valve_delay_s
+        assert r.meta["simulation"]["params"]["effects"]["leak_drive_area_m2"] == 1e-7
+    early = runs[2].schedule()
+    assert len(early) == 2 and 0.3 < early[1][0] < runs[1].schedule()[1][0]
+
+
+def test_bad_export_arguments():
+    with pytest.raises(ValueError, match="sample_rate_hz"):
+        simulate_run(thesis_rig(2.5), sample_rate_hz=0.0)
+    with pytest.raises(ValueError, match="optional"):
+        simulate_run(thesis_rig(2.5), optional=("p_port",))
+    with pytest.raises(ValueError, match="noise"):
+        simulate_run(thesis_rig(2.5), noise={"pressure": 1.0})
