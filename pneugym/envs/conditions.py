@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..params import RigParams
+from ..params import RigParams, _check, _finite, _nonneg, _positive
 
 
 @dataclass(frozen=True)
@@ -39,18 +39,11 @@ class Conditions:
     pressure_noise_pa: float = 0.0
 
     def __post_init__(self) -> None:
-        rules = {
-            "supply_pressure_gauge_pa": lambda v: v > 0, "load_mass_kg": lambda v: v >= 0,
-            "friction_scale": lambda v: v >= 0, "valve_delay_scale": lambda v: v > 0,
-            "dip_start_s": lambda v: v >= 0, "dip_duration_s": lambda v: v >= 0,
-            "dip_depth": lambda v: 0 <= v < 1, "position_noise_m": lambda v: v >= 0,
-            "pressure_noise_pa": lambda v: v >= 0,
-        }
-        for name, rule in rules.items():
-            val = getattr(self, name)
-            number = isinstance(val, (int, float)) and not isinstance(val, bool)
-            if not (number and math.isfinite(val) and rule(val)):
-                raise ValueError(f"Conditions.{name} = {val!r} is invalid")
+        _finite(self)
+        _positive(self, "supply_pressure_gauge_pa", "valve_delay_scale")
+        _nonneg(self, "load_mass_kg", "friction_scale", "dip_start_s", "dip_duration_s",
+                "position_noise_m", "pressure_noise_pa")
+        _check(self, "dip_depth", 0 <= self.dip_depth < 1, "in [0, 1)")
 
     @property
     def supply_bar_gauge(self) -> float:
