@@ -6,15 +6,21 @@
 - :class:`~agents.gaslaw.GasLawPolicy`: the thesis's predictor (eq. 5.1) with K calibrated per
   supply pressure;
 - :class:`~agents.oracle.OraclePolicy`: the best single cut-off time, found with privileged access
-  to the episode's conditions (an upper bound for latched policies).
+  to the episode's conditions (an upper bound for latched policies);
+- learned (train.py): :class:`~agents.esac.ESACPolicy`, the thesis's proposed neural predictor
+  (6.8), and :class:`~agents.learned.SB3Policy` for stable-baselines3 models.
 
-:func:`make_policy` builds one by name for an environment.
+:func:`make_policy` builds a baseline by name for an environment; :func:`load_policy` loads a
+trained model (checking its observation layout against the environment's).
 """
 from .base import ObservationReader, Policy
 from .baselines import ConventionalPolicy, EndStrokePolicy
+from .esac import ESACPolicy, ESACPredictor
 from .gaslaw import GasLawPolicy
+from .learned import LayoutMismatchError, LearnedPolicy, SB3Policy
 from .oracle import OraclePolicy
-from .registry import BASELINES, make_policy
+from .registry import BASELINES, load_policy, make_policy
 
 __all__ = ["Policy", "ObservationReader", "ConventionalPolicy", "EndStrokePolicy",
-           "GasLawPolicy", "OraclePolicy", "BASELINES", "make_policy"]
+           "GasLawPolicy", "OraclePolicy", "BASELINES", "make_policy", "load_policy",
+           "LearnedPolicy", "SB3Policy", "ESACPolicy", "ESACPredictor", "LayoutMismatchError"]

@@ -1,11 +1,13 @@
-"""Build a policy by name for an environment."""
+"""Build a policy by name for an environment, or load a trained one from disk."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from .base import Policy
 from .baselines import ConventionalPolicy, EndStrokePolicy
 from .gaslaw import GasLawPolicy
+from .learned import LayoutMismatchError, SB3Policy, read_run
 from .oracle import OraclePolicy
 
 BASELINES: dict[str, type[Policy]] = {
@@ -22,42 +24,55 @@ def make_policy(name: str, env, **kwargs: Any) -> Policy:
     return BASELINES[name].for_env(env, **kwargs)
 
 
-class SB3Policy(Policy):
-    """A saved stable-baselines3 model (PPO, DQN, A2C) behind the common interface."""
-
-    name = "sb3"
-
-    def __init__(self, layout, model):
-        super().__init__(layout)
-        shape = tuple(model.observation_space.shape)
-        if shape != (self.read.size,):
-            raise ValueError(f"the model expects observations of shape {shape}, the environment "
-                             f"gives ({self.read.size},): its observation layout differs")
-        self.model = model
-
-    def act(self, obs):
-        a, _ = self.model.predict(obs, deterministic=True)
-        return a
+def _model_file(p: Path) -> Path:
+    """A run directory's model (``run.json``'s ``model``), or the file itself."""
+    if p.is_dir():
+        run = read_run(p)
+        if run is None or "model" not in run:
+            raise FileNotFoundError(f"{p} is a directory without a finished run.json (train.py "
+                                    f"writes one); give the model file instead")
+        f = p / run["model"]
+        if not f.is_file():
+            raise FileNotFoundError(f"{p}/run.json names {run['model']}, which does not exist")
+        return f
+    return p
 
 
-def load_policy(path: str, env) -> Policy:
-    """A saved model for ``env``: a stable-baselines3 ``.zip`` (PPO, DQN or A2C)."""
+def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
+    """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``) or a
+    stable-baselines3 ``.zip`` (PPO, DQN or A2C). The model's observation layout (recorded in the
+    file, or in its run's ``run.json``) must match the environment's up to the history, else a
+    :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` go to the ESAC rule."""
     import zipfile
-    from pathlib import Path
 
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no saved model at {path}")
-    if not zipfile.is_zipfile(p):
-        raise ValueError(f"{path} is not a stable-baselines3 model (.zip)")
+    f = _model_file(p)
+    layout = env.unwrapped.observation_layout()
+    run = read_run(f.parent)
+    from . import esac
+
+    if f.suffix == ".pt" or (run or {}).get("algo") == "esac":
+        return esac.load_policy(f, layout, **kwargs)
+    if not zipfile.is_zipfile(f):
+        raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
+                         f"(.pt)")
     from stable_baselines3 import A2C, DQN, PPO
 
+    algos = {"ppo": PPO, "dqn": DQN, "a2c": A2C}
+    order = [algos[run["algo"]]] if run and run.get("algo") in algos else [PPO, DQN, A2C]
     errors = []
-    for algo in (PPO, DQN, A2C):
+    for algo in order:
         try:
-            model = algo.load(p, device="cpu")
+            model = algo.load(f, device="cpu")
         except Exception as exc:  # noqa: BLE001 - try the next algorithm, report all
             errors.append(f"{algo.__name__}: {exc}")
             continue
-        return SB3Policy(env.unwrapped.observation_layout(), model)
+        model_layout = model.__dict__.get("pneugym_layout") or (run or {}).get(
+            "observation_layout")
+        return SB3Policy(layout, model, model_layout, source=f"model {f}")
     raise ValueError(f"could not load {path} as PPO, DQN or A2C: " + "; ".join(errors))
+
+
+__all__ = ["BASELINES", "make_policy", "load_policy", "SB3Policy", "LayoutMismatchError"]

@@ -1,0 +1,606 @@
+"""ESAC, the Energy Saving Actuation Control the thesis proposes in 6.8 but never builds: a neural
+network that, from the current sensor history, predicts what would happen if the supply were cut
+**now**, and a controller that cuts at the first instant the prediction says the stroke completes
+with a safety margin and within the time demand.
+
+**Predictor** (:class:`ESACNet`, :class:`ESACPredictor`). Input: the observation of
+``pneugym/CutOff-v0`` with ``history=k`` (the last ``k`` samples of position, velocity, both port
+pressures, supply set-point, time, cut flag). Outputs, for a cut at this instant:
+
+- ``p_complete``: probability that the piston still reaches the end of stroke;
+- ``final_position_m``: where it ends (the stroke length if it completes);
+- ``stroke_time_s``: when it arrives (from the extend command), if it completes;
+- ``conventional_time_s``: when it would arrive without a cut (so ``time_increase`` =
+  ``stroke_time_s / conventional_time_s - 1`` needs nothing the controller cannot see);
+- ``wasted_fraction`` and ``wasted_energy_j``: the air energy left in the driving side (eq. 5.9),
+  as a fraction of a conventional stroke's and in joules;
+- ``p_stick``: probability of a stick-slip event on the way.
+
+**Training data** (:func:`generate_rollouts`): episodes of the batched environment over the
+``randomized`` conditions, each cut off at a uniformly random time in ``[0, T_conv + 20 ms]``; the
+observation at the cut and the episode's final figures make one sample. Cached on disk
+(:func:`rollouts`), keyed by the generator's settings and a hash of the plant's sources.
+
+**Controller** (:class:`ESACPolicy`): cut when ``p_complete >= 1 - margin``, the predicted final
+position is within ``tolerance_m`` of the stroke end, the predicted time increase is at most
+``max_time_increase`` (the time demand) and ``p_stick <= max_stick``. ``margin`` is the safety
+margin: the accepted predicted risk of an incomplete stroke. train.py tunes ``margin``,
+``max_time_increase`` and ``max_stick`` on validation conditions (training seeds).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .base import run_first_episodes
+from .learned import LearnedPolicy
+from .oracle import TimedCutPolicy
+
+FORMAT = "pneugym-esac-1"
+#: Classification heads (logits) and regression heads (standardised), in output order.
+CLASS_HEADS = ("complete", "stick")
+REG_HEADS = ("final_position", "log_time_ratio", "conventional_time_s", "wasted_fraction",
+             "energy_conventional_j")
+GENERATOR_VERSION = 2  # bump when generate_rollouts changes what it records
+
+
+# ------------------------------------------------------------------------------------------------
+# data
+# ------------------------------------------------------------------------------------------------
+def source_hash() -> str:
+    """SHA-256 (first 16 hex digits) of the ``pneugym`` package's Python sources: a changed plant
+    makes cached rollouts stale."""
+    import pneugym
+
+    root = Path(pneugym.__file__).parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "randomized",
+                      env_config: Mapping[str, Any] | None = None, batch: int = 512,
+                      focus: tuple[float, float] = (0.3, 1.0), focus_share: float = 0.8,
+                      progress: bool = True) -> dict[str, np.ndarray]:
+    """``n`` episodes with a random cut-off time each, in batches of the vector environment
+    (``autoreset=False``). The cut time is uniform in ``[0, T + window]`` (``T`` the conventional
+    stroke time of the episode's conditions), or, for a share ``focus_share`` of the episodes, in
+    ``focus`` times that (where the outcome changes from stall to slow to on time). Episode ``j``
+    draws its conditions from ``preset`` with seed ``seed + j`` and its cut time from
+    ``default_rng([seed, j])``.
+
+    Returns arrays with one row per episode that was cut before it ended: ``obs`` (the
+    observation at the cut), ``t_cut`` [s], and the final figures ``completed``, ``stalled``,
+    ``final_position_m``, ``stroke_time_s`` (NaN if incomplete), ``conventional_time_s``,
+    ``energy_wasted_j``, ``energy_conventional_j``, ``saving_ratio``, ``stick_slip_events``,
+    ``objective``, plus the conditions' fields."""
+    from tqdm import tqdm
+
+    from pneugym.envs import conventional_figures
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    cfg = dict(env_config or {})
+    cfg["history"] = history
+    cols: dict[str, list] = {}
+    bar = tqdm(total=n, desc="ESAC rollouts", unit="ep", disable=not progress)
+    for start in range(0, n, batch):
+        b = min(batch, n - start)
+        env = CutOffVectorEnv(num_envs=b, autoreset=False, preset=preset, **cfg)
+        env.reset(seed=seed + start)  # draws the conditions from the preset
+        conds = list(env.conditions)
+        window = env.decision_window_s
+        t_conv = np.array([conventional_figures(c.rig(env.rig), c.dip)[0] for c in conds])
+        u = np.array([np.random.default_rng([seed, start + i]).random(2) for i in range(b)])
+        # a fifth of the cut times anywhere, the rest where the outcome turns (stall, slow,
+        # on time): from 30 % of the conventional stroke time on
+        lo = np.where(u[:, 0] < focus_share, focus[0], 0.0)
+        hi = np.where(u[:, 0] < focus_share, focus[1], 1.0)
+        t_cut = (lo + (hi - lo) * u[:, 1]) * (t_conv + window)
+        pol = _RecordingCut(env.observation_layout(), t_cut)
+        final = run_first_episodes(env, pol, conds, seed + start)
+        x_cut, t_rec = pol.obs, pol.t_rec
+        keep = ~np.isnan(t_rec)
+        rows = {
+            "obs": x_cut, "t_cut": t_rec,
+            "completed": np.array(final["completed"], dtype=bool),
+            "stalled": np.array(final["stalled"], dtype=bool),
+            "final_position_m": np.array(final["position_m"], dtype=float),
+            "stroke_time_s": np.array([np.nan if v is None else v
+                                       for v in final["stroke_time_s"]], dtype=float),
+            "conventional_time_s": np.array(final["conventional_stroke_time_s"], dtype=float),
+            "energy_wasted_j": np.array(final["energy_wasted_j"], dtype=float),
+            "energy_conventional_j": np.array(final["energy_conventional_j"], dtype=float),
+            "saving_ratio": np.array(final["saving_ratio"], dtype=float),
+            "stick_slip_events": np.array(final["stick_slip_events"], dtype=np.int64),
+            "objective": np.array(final["objective"], dtype=float),
+        }
+        for key in conds[0].to_dict():
+            rows[key] = np.array([getattr(c, key) for c in conds], dtype=float)
+        for key, val in rows.items():
+            cols.setdefault(key, []).append(val[keep])
+        bar.update(b)
+    bar.close()
+    return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+class _RecordingCut(TimedCutPolicy):
+    """Cuts at ``t_cut_s`` and records each row's observation at its cut."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        a = super().act(obs)
+        if not hasattr(self, "obs"):
+            self.obs = np.zeros_like(obs)
+            self.t_rec = np.full(obs.shape[0], np.nan)
+        new = (a == 1) & np.isnan(self.t_rec)
+        self.obs[new] = obs[new]
+        self.t_rec[new] = self.read(obs, "time")[new]
+        return a
+
+
+def rollouts(cache_dir: str | Path | None, n: int, seed: int, history: int = 8,
+             preset: str = "randomized", env_config: Mapping[str, Any] | None = None,
+             progress: bool = True) -> dict[str, np.ndarray]:
+    """:func:`generate_rollouts`, cached in ``cache_dir`` as ``.npz`` (written atomically) under
+    a key of the arguments, the generator version and :func:`source_hash`."""
+    spec = {"n": n, "seed": seed, "history": history, "preset": preset,
+            "env_config": {k: repr(v) for k, v in sorted(dict(env_config or {}).items())},
+            "generator": GENERATOR_VERSION, "pneugym_sources": source_hash()}
+    key = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+    path = Path(cache_dir) / f"esac-rollouts-{key}.npz" if cache_dir else None
+    if path is not None and path.is_file():
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files if k != "spec"}
+    data = generate_rollouts(n, seed, history, preset, env_config, progress=progress)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + f".{os.getpid()}.tmp.npz")
+        np.savez_compressed(tmp, spec=np.array(json.dumps(spec)), **data)
+        os.replace(tmp, path)
+    return data
+
+
+def targets(data: Mapping[str, np.ndarray], stroke_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Training targets ``(B, 2 + 5)``: completed, stick-slip (labels), final position / stroke,
+    ``log(stroke time / conventional stroke time)``, conventional stroke time [s], wasted energy /
+    conventional, conventional wasted energy [J]; and their mask (the time ratio only where the
+    stroke completed)."""
+    y = np.stack([
+        data["completed"].astype(float), (data["stick_slip_events"] > 0).astype(float),
+        data["final_position_m"] / stroke_m,
+        np.log(np.nan_to_num(data["stroke_time_s"] / data["conventional_time_s"], nan=1.0)),
+        data["conventional_time_s"],
+        data["energy_wasted_j"] / data["energy_conventional_j"],
+        data["energy_conventional_j"],
+    ], axis=1)
+    mask = np.ones_like(y)
+    mask[:, 3] = data["completed"]
+    return y.astype(np.float32), mask.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------
+# network
+# ------------------------------------------------------------------------------------------------
+def _torch():
+    import torch
+
+    return torch
+
+
+def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128)):
+    """An MLP from the observation to ``2 + 5`` outputs (logits, standardised values), with the
+    input and output normalisation as buffers (saved with the weights)."""
+    torch = _torch()
+    nn = torch.nn
+
+    class ESACNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            layers: list[nn.Module] = []
+            last = n_in
+            for h in hidden:
+                layers += [nn.Linear(last, h), nn.SiLU()]
+                last = h
+            layers.append(nn.Linear(last, len(CLASS_HEADS) + len(REG_HEADS)))
+            self.body = nn.Sequential(*layers)
+            self.register_buffer("in_mean", torch.zeros(n_in))
+            self.register_buffer("in_std", torch.ones(n_in))
+            self.register_buffer("out_mean", torch.zeros(len(REG_HEADS)))
+            self.register_buffer("out_std", torch.ones(len(REG_HEADS)))
+
+        def forward(self, x):
+            """Raw outputs: class logits, then standardised regression values."""
+            return self.body((x - self.in_mean) / self.in_std)
+
+    return ESACNet()
+
+
+def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = (128, 128, 128),
+        epochs: int = 60, batch_size: int = 256, lr: float = 2e-3, weight_decay: float = 1e-5,
+        val_fraction: float = 0.1, seed: int = 0, patience: int = 15, progress: bool = True
+        ) -> tuple[Any, dict[str, Any]]:
+    """Train the predictor on ``x`` (B, n_in), targets ``y`` and ``mask`` of :func:`targets`:
+    binary cross-entropy on the class heads, mean squared error on the standardised regression
+    heads (masked), Adam with a cosine learning rate; keeps the weights of the best validation
+    loss (rows split at random: each row is its own episode and conditions). Returns the network
+    and the loss history."""
+    from tqdm import tqdm
+
+    torch = _torch()
+    nc = len(CLASS_HEADS)
+    gen = torch.Generator().manual_seed(seed)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    idx = rng.permutation(x.shape[0])
+    nv = max(1, int(round(val_fraction * x.shape[0])))
+    vi, ti = idx[:nv], idx[nv:]
+    net = make_net(x.shape[1], hidden)
+    xt = torch.as_tensor(x, dtype=torch.float32)
+    yt = torch.as_tensor(y, dtype=torch.float32)
+    mt = torch.as_tensor(mask, dtype=torch.float32)
+    with torch.no_grad():
+        net.in_mean[:] = xt[ti].mean(0)
+        net.in_std[:] = xt[ti].std(0).clamp_min(1e-6)
+        yr, mr = yt[ti, nc:], mt[ti, nc:]
+        mean = (yr * mr).sum(0) / mr.sum(0).clamp_min(1.0)
+        var = (((yr - mean) * mr) ** 2).sum(0) / mr.sum(0).clamp_min(1.0)
+        net.out_mean[:] = mean
+        net.out_std[:] = var.sqrt().clamp_min(1e-6)
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
+    steps = epochs * max(1, math.ceil(ti.size / batch_size))
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps,
+                                                pct_start=0.1)
+
+    def loss_of(rows):
+        out = net(xt[rows])
+        bce = torch.nn.functional.binary_cross_entropy_with_logits(out[:, :nc], yt[rows, :nc])
+        z = (yt[rows, nc:] - net.out_mean) / net.out_std
+        m = mt[rows, nc:]
+        mse = (((out[:, nc:] - z) ** 2) * m).sum() / m.sum().clamp_min(1.0)
+        return bce + mse
+
+    hist: dict[str, Any] = {"train": [], "val": []}
+    best, best_state, stale = math.inf, None, 0
+    t0 = time.perf_counter()
+    bar = tqdm(range(epochs), desc="ESAC fit", unit="epoch", disable=not progress)
+    for _ in bar:
+        net.train()
+        perm = torch.as_tensor(ti)[torch.randperm(ti.size, generator=gen)]
+        total = 0.0
+        for k in range(0, ti.size, batch_size):
+            rows = perm[k:k + batch_size]
+            loss = loss_of(rows)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += loss.item() * rows.numel()
+        net.eval()
+        with torch.no_grad():
+            val = loss_of(torch.as_tensor(vi)).item()
+        hist["train"].append(total / ti.size)
+        hist["val"].append(val)
+        bar.set_postfix(train=f"{hist['train'][-1]:.4f}", val=f"{val:.4f}")
+        if val < best - 1e-5:
+            best, stale = val, 0
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        else:
+            stale += 1
+            if stale >= patience:
+                break
+    if best_state is not None:
+        net.load_state_dict(best_state)
+    net.eval()
+    hist.update(best_val=best, epochs_run=len(hist["val"]), fit_wall_s=time.perf_counter() - t0)
+    return net, hist
+
+
+class ESACPredictor:
+    """The trained network with its units: :meth:`__call__` maps observations (in the model's
+    layout) to the predicted outcome of cutting now, in SI units."""
+
+    def __init__(self, net, layout: Mapping[str, Any]):
+        self.net = net
+        self.layout = dict(layout)
+        feats = {f["name"]: f for f in layout["features"]}
+        self.stroke_m = float(feats["position"]["scale"])
+
+    def raw(self, obs: np.ndarray) -> np.ndarray:
+        torch = _torch()
+        with torch.no_grad():
+            out = self.net(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
+            nc = len(CLASS_HEADS)
+            out[:, nc:] = out[:, nc:] * self.net.out_std + self.net.out_mean
+        return out.numpy().astype(np.float64)
+
+    def __call__(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        o = self.raw(np.atleast_2d(obs))
+        p_c = 0.5 * (1.0 + np.tanh(0.5 * o[:, 0]))  # logistic, without overflow
+        p_s = 0.5 * (1.0 + np.tanh(0.5 * o[:, 1]))
+        x, lr, tc, wf, ec = (o[:, 2 + k] for k in range(5))
+        ratio = np.exp(np.minimum(lr, 5.0))
+        return {"p_complete": p_c, "p_stick": p_s,
+                "final_position_m": np.minimum(x, 1.0) * self.stroke_m,
+                "stroke_time_s": ratio * tc, "conventional_time_s": tc,
+                "time_increase": ratio - 1.0,
+                "wasted_fraction": wf, "wasted_energy_j": wf * ec,
+                "energy_conventional_j": ec}
+
+
+# ------------------------------------------------------------------------------------------------
+# accuracy
+# ------------------------------------------------------------------------------------------------
+def accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Prediction errors on a rollout set (held-out conditions): completion accuracy, final
+    position, stroke time, time increase and wasted energy."""
+    p = pred(data["obs"])
+    comp = data["completed"].astype(bool)
+    c_hat = p["p_complete"] >= 0.5
+    stall = ~comp
+    out: dict[str, Any] = {
+        "samples": int(comp.size), "completed_share": float(comp.mean()),
+        "completion_accuracy": float((c_hat == comp).mean()),
+        "false_complete_rate": float((c_hat & stall).sum() / max(1, stall.sum())),
+        "final_position_mae_mm": float(np.mean(np.abs(p["final_position_m"]
+                                                      - data["final_position_m"])) * 1e3),
+        "final_position_mae_mm_incomplete": float(np.mean(np.abs(
+            p["final_position_m"][stall] - data["final_position_m"][stall])) * 1e3)
+        if stall.any() else None,
+        "wasted_fraction_mae": float(np.mean(np.abs(
+            p["wasted_fraction"] - data["energy_wasted_j"] / data["energy_conventional_j"]))),
+        "wasted_energy_mae_j": float(np.mean(np.abs(p["wasted_energy_j"]
+                                                    - data["energy_wasted_j"]))),
+        "conventional_time_mae_ms": float(np.mean(np.abs(p["conventional_time_s"]
+                                                         - data["conventional_time_s"])) * 1e3),
+        "stick_accuracy": float(((p["p_stick"] >= 0.5) == (data["stick_slip_events"] > 0))
+                                .mean()),
+    }
+    if comp.any():
+        t_true = data["stroke_time_s"][comp]
+        ti_true = t_true / data["conventional_time_s"][comp] - 1.0
+        err = p["stroke_time_s"][comp] - t_true
+        out.update(
+            stroke_time_mae_ms=float(np.mean(np.abs(err)) * 1e3),
+            stroke_time_median_ae_ms=float(np.median(np.abs(err)) * 1e3),
+            stroke_time_mape=float(np.mean(np.abs(err) / t_true)),
+            time_increase_mae=float(np.mean(np.abs(p["time_increase"][comp] - ti_true))))
+        # the region the controller decides in: completing cuts with at most +50 % time
+        near = ti_true <= 0.5
+        if near.any():
+            out["stroke_time_mae_ms_within_50pct"] = float(np.mean(np.abs(err[near])) * 1e3)
+            out["time_increase_mae_within_50pct"] = float(np.mean(np.abs(
+                p["time_increase"][comp][near] - ti_true[near])))
+    return out
+
+
+def plot_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], path: str | Path,
+                  title: str = "ESAC on held-out conditions") -> None:
+    """Predicted vs simulated: completion probability vs cut time, final position, stroke time
+    and wasted energy (PNG)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = pred(data["obs"])
+    comp = data["completed"].astype(bool)
+    fig, ax = plt.subplots(2, 2, figsize=(9, 7.5))
+    rel_t = data["t_cut"] / data["conventional_time_s"]
+    ax[0, 0].scatter(rel_t[comp], p["p_complete"][comp], s=3, alpha=0.3, label="completed")
+    ax[0, 0].scatter(rel_t[~comp], p["p_complete"][~comp], s=3, alpha=0.3, label="incomplete")
+    ax[0, 0].set_xlabel("cut time / conventional stroke time")
+    ax[0, 0].set_ylabel("predicted P(complete)")
+    ax[0, 0].legend(fontsize=8, markerscale=3)
+    s = pred.stroke_m * 1e3
+    ax[0, 1].scatter(data["final_position_m"] * 1e3, p["final_position_m"] * 1e3, s=3, alpha=0.3)
+    ax[0, 1].plot([0, s], [0, s], "k--", lw=0.8)
+    ax[0, 1].set_xlabel("final position, simulated [mm]")
+    ax[0, 1].set_ylabel("predicted [mm]")
+    t = data["stroke_time_s"][comp]
+    ax[1, 0].scatter(t, p["stroke_time_s"][comp], s=3, alpha=0.3)
+    lim = [float(np.nanmin(t)), float(min(np.nanmax(t), 4.0))] if comp.any() else [0, 4]
+    ax[1, 0].plot(lim, lim, "k--", lw=0.8)
+    ax[1, 0].set_xlabel("stroke time, simulated [s] (completed strokes)")
+    ax[1, 0].set_ylabel("predicted [s]")
+    wf = data["energy_wasted_j"] / data["energy_conventional_j"]
+    ax[1, 1].scatter(wf, p["wasted_fraction"], s=3, alpha=0.3)
+    ax[1, 1].plot([0, 1.05], [0, 1.05], "k--", lw=0.8)
+    ax[1, 1].set_xlabel("wasted energy / conventional, simulated")
+    ax[1, 1].set_ylabel("predicted")
+    for a in ax.flat:
+        a.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------------
+# controller
+# ------------------------------------------------------------------------------------------------
+RULE_DEFAULTS = {"margin": 0.05, "max_time_increase": 0.2, "max_stick": 0.5,
+                 "tolerance_m": 0.002, "lookback": 0, "w_time": 0.3, "w_stick": 0.5,
+                 "hysteresis": 0.0}
+
+
+class ESACPolicy(LearnedPolicy):
+    """The ESAC controller (thesis 6.8): cut off at the first instant the predictor says
+
+    1. the stroke completes with the safety ``margin``: predicted risk of an incomplete stroke at
+       most ``margin``, predicted final position within ``tolerance_m`` of the stroke end;
+    2. within the time demand: predicted stroke time at most ``1 + max_time_increase`` times the
+       predicted conventional one (or at most ``time_demand_s`` seconds if given);
+    3. with a predicted stick-slip risk of at most ``max_stick``;
+    4. and, with ``lookback > 0``, that waiting no longer pays: the predicted objective of cutting
+       now, ``-wasted_fraction - w_time * time_increase - w_stick * p_stick``, has not risen by
+       more than ``hysteresis`` over the last ``lookback`` control periods. The time demand is then
+       a bound, and the trade-off inside it is the objective's (``w_time``, ``w_stick``).
+
+    With ``lookback = 0`` (the thesis's rule) it cuts as soon as 1-3 hold, i.e. as late as the time
+    demand allows. Every parameter may be an array with one value per observation row (sweeps).
+    ``last_prediction`` holds the predictions of the last call.
+    """
+
+    name = "esac"
+
+    def __init__(self, env_layout: Mapping[str, Any], predictor: ESACPredictor,
+                 margin: float | np.ndarray = RULE_DEFAULTS["margin"],
+                 max_time_increase: float | np.ndarray = RULE_DEFAULTS["max_time_increase"],
+                 max_stick: float | np.ndarray = RULE_DEFAULTS["max_stick"],
+                 tolerance_m: float | np.ndarray = RULE_DEFAULTS["tolerance_m"],
+                 lookback: int | np.ndarray = RULE_DEFAULTS["lookback"],
+                 w_time: float | np.ndarray = RULE_DEFAULTS["w_time"],
+                 w_stick: float | np.ndarray = RULE_DEFAULTS["w_stick"],
+                 hysteresis: float | np.ndarray = RULE_DEFAULTS["hysteresis"],
+                 time_demand_s: float | np.ndarray | None = None, source: str = "the ESAC model"):
+        super().__init__(env_layout, predictor.layout, source)
+        self.predictor = predictor
+        self.margin = np.asarray(margin, dtype=float)
+        self.max_time_increase = np.asarray(max_time_increase, dtype=float)
+        self.max_stick = np.asarray(max_stick, dtype=float)
+        self.tolerance_m = np.asarray(tolerance_m, dtype=float)
+        self.lookback = np.asarray(lookback).astype(np.int64)
+        self.w_time = np.asarray(w_time, dtype=float)
+        self.w_stick = np.asarray(w_stick, dtype=float)
+        self.hysteresis = np.asarray(hysteresis, dtype=float)
+        self.time_demand_s = None if time_demand_s is None else np.asarray(time_demand_s, float)
+        if np.any(self.margin < 0) or np.any(self.margin > 1):
+            raise ValueError(f"margin = {margin!r} must be in [0, 1]")
+        if np.any(self.lookback < 0):
+            raise ValueError(f"lookback = {lookback!r} must be >= 0 control periods")
+        names = [f["name"] for f in predictor.layout["features"]]
+        nf = len(names)
+        h = int(predictor.layout["history"])
+        self._cut_index = (h - 1) * nf + names.index("supply_cut")
+        self._time_model_index = (h - 1) * nf + names.index("time")
+        self._jbuf: np.ndarray | None = None
+        self.last_prediction: dict[str, np.ndarray] | None = None
+
+    def rule(self) -> dict[str, Any]:
+        """The controller's parameters (the safety ``margin`` among them)."""
+        out = {k: getattr(self, k).tolist() for k in RULE_DEFAULTS}
+        if self.time_demand_s is not None:
+            out["time_demand_s"] = self.time_demand_s.tolist()
+        return out
+
+    def objective(self, p: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The predicted objective of cutting now (stall risk aside: the margin covers it)."""
+        return (-p["wasted_fraction"] - self.w_time * np.maximum(p["time_increase"], 0.0)
+                - self.w_stick * p["p_stick"])
+
+    def decide(self, p: Mapping[str, np.ndarray], peaked: np.ndarray | bool = True
+               ) -> np.ndarray:
+        """The cut decision for predictions ``p`` of :class:`ESACPredictor` (``peaked``: rule 4)."""
+        ok = p["p_complete"] >= 1.0 - self.margin
+        ok &= p["final_position_m"] >= self.predictor.stroke_m - self.tolerance_m
+        if self.time_demand_s is not None:
+            ok &= p["stroke_time_s"] <= self.time_demand_s
+        else:
+            ok &= p["time_increase"] <= self.max_time_increase
+        ok &= p["p_stick"] <= self.max_stick
+        return ok & peaked
+
+    def act_model(self, obs: np.ndarray) -> np.ndarray:
+        p = self.predictor(obs)
+        self.last_prediction = p
+        b = obs.shape[0]
+        peaked: np.ndarray | bool = True
+        lmax = int(self.lookback.max()) if self.lookback.size else 0
+        if lmax > 0:
+            j = self.objective(p)
+            if self._jbuf is None or self._jbuf.shape != (b, lmax):
+                self._jbuf = np.full((b, lmax), np.nan)
+            fresh = obs[:, self._time_model_index] == 0.0
+            self._jbuf[fresh] = np.nan
+            lb = np.broadcast_to(self.lookback, (b,))
+            back = self._jbuf[np.arange(b), lmax - np.maximum(lb, 1)]
+            # rule 4 holds once the objective has not risen over the lookback (unknown: no)
+            peaked = (lb == 0) | (j - back <= self.hysteresis)
+            self._jbuf[:, :-1] = self._jbuf[:, 1:]
+            self._jbuf[:, -1] = j
+        already = obs[:, self._cut_index] > 0.5
+        return (self.decide(p, peaked) | already).astype(np.int64)
+
+
+# ------------------------------------------------------------------------------------------------
+# saving and loading
+# ------------------------------------------------------------------------------------------------
+def save(path: str | Path, net, meta: Mapping[str, Any]) -> None:
+    """Write the weights and ``meta`` (JSON-able: layout, architecture, rule, provenance) in one
+    file, atomically."""
+    torch = _torch()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    torch.save({"format": FORMAT, "state_dict": net.state_dict(),
+                "meta": json.dumps(dict(meta), allow_nan=False)}, tmp)
+    os.replace(tmp, path)
+
+
+def is_esac_file(path: str | Path) -> bool:
+    """True if ``path`` looks like a saved ESAC model (a torch file, not an SB3 zip)."""
+    import zipfile
+
+    p = Path(path)
+    if not p.is_file():
+        return False
+    if p.suffix == ".pt":
+        return True
+    return zipfile.is_zipfile(p) and "data" not in zipfile.ZipFile(p).namelist()
+
+
+def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
+    """The predictor and the metadata of a saved ESAC model."""
+    torch = _torch()
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise ValueError(f"{path} is not an ESAC model ({FORMAT})")
+    meta = json.loads(blob["meta"])
+    net = make_net(int(meta["n_in"]), meta["hidden"])
+    net.load_state_dict(blob["state_dict"])
+    net.eval()
+    return ESACPredictor(net, meta["layout"]), meta
+
+
+def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) -> ESACPolicy:
+    """The ESAC controller saved at ``path`` for an environment of ``env_layout``, with the saved
+    (tuned) rule unless overridden by ``rule``."""
+    pred, meta = load(path)
+    params = {**RULE_DEFAULTS, **meta.get("rule", {}), **rule}
+    return ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
+
+
+# ------------------------------------------------------------------------------------------------
+# tuning the rule
+# ------------------------------------------------------------------------------------------------
+def sweep_rule(predictor: ESACPredictor, conditions: Sequence[Any], grid: Iterable[Mapping],
+               env_config: Mapping[str, Any] | None = None, seed: int = 0
+               ) -> list[dict[str, Any]]:
+    """Mean return of the controller for each rule in ``grid`` on ``conditions`` (one batched
+    run of ``len(grid) * len(conditions)`` episodes)."""
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    grid = list(grid)
+    nc = len(conditions)
+    cfg = {**dict(env_config or {}), "history": int(predictor.layout["history"])}
+    env = CutOffVectorEnv(num_envs=nc * len(grid), autoreset=False, **cfg)
+    arrays = {k: np.repeat([g.get(k, RULE_DEFAULTS[k]) for g in grid], nc)
+              for k in RULE_DEFAULTS}
+    pol = ESACPolicy(env.observation_layout(), predictor, **arrays)
+    out = run_first_episodes(env, pol, list(conditions) * len(grid), seed)
+    res = []
+    for k, g in enumerate(grid):
+        s = slice(k * nc, (k + 1) * nc)
+        res.append({**{kk: float(v) for kk, v in g.items()},
+                    "return_mean": float(np.mean(out["objective"][s])),
+                    "stall_rate": float(np.mean(out["stalled"][s])),
+                    "saving_mean": float(np.mean(out["saving_ratio"][s]))})
+    return res

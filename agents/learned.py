@@ -1,0 +1,182 @@
+"""What every learned policy shares: the observation layout it was trained on, checked against the
+environment it is run in, and the sample history it needs, rebuilt from single samples.
+
+A model trained with ``history=k`` sees the last ``k`` sensor samples. It runs unchanged in an
+environment with the same layout, and also in one with ``history=1`` (as evaluate.py builds it):
+:class:`LearnedPolicy` then stacks the samples itself, exactly as the environment would (a new
+episode starts with its first sample repeated). Any other difference (features, their scales, the
+time limit that scales ``time``, the control period, privileged features) is refused with a
+:class:`LayoutMismatchError` that names it.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .base import Policy
+
+#: The per-run record written by train.py next to every model.
+RUN_FILE = "run.json"
+
+
+class LayoutMismatchError(ValueError):
+    """A saved model and an environment disagree on the observation layout."""
+
+
+def _feature_key(f: Mapping[str, Any]) -> tuple:
+    return (f["name"], f.get("unit"), round(float(f["scale"]), 12), f.get("offset", "0"))
+
+
+def layout_differences(model: Mapping[str, Any], env: Mapping[str, Any]) -> list[str]:
+    """What differs between a model's observation layout and an environment's, history aside
+    (empty: compatible up to the history)."""
+    diffs = []
+    mf = [_feature_key(f) for f in model["features"]]
+    ef = [_feature_key(f) for f in env["features"]]
+    if [k[0] for k in mf] != [k[0] for k in ef]:
+        diffs.append(f"features {[k[0] for k in mf]} (model) vs {[k[0] for k in ef]} (env)")
+    else:
+        for a, b in zip(mf, ef):
+            if a != b:
+                diffs.append(f"feature {a[0]!r}: unit/scale/offset {a[1:]} (model) vs {b[1:]} "
+                             f"(env)" + ("; the time scale is time_limit_s" if a[0] == "time"
+                                         else ""))
+    mp = [_feature_key(f) for f in model.get("param_features", [])]
+    ep = [_feature_key(f) for f in env.get("param_features", [])]
+    if mp != ep:
+        diffs.append(f"privileged features {[k[0] for k in mp]} (model) vs {[k[0] for k in ep]} "
+                     f"(env): observe_params differs")
+    if abs(float(model["control_period_s"]) - float(env["control_period_s"])) > 1e-12:
+        diffs.append(f"control_period_s {model['control_period_s']} (model) vs "
+                     f"{env['control_period_s']} (env)")
+    return diffs
+
+
+def check_layout(model: Mapping[str, Any], env: Mapping[str, Any], source: str = "the model"
+                 ) -> int:
+    """Raise :class:`LayoutMismatchError` unless a model trained on layout ``model`` can run in an
+    environment of layout ``env``. Returns the history the policy must stack itself (0: none,
+    the environment's observation is the model's)."""
+    diffs = layout_differences(model, env)
+    hm, he = int(model["history"]), int(env["history"])
+    if hm != he and he != 1:
+        diffs.append(f"history {hm} (model) vs {he} (env); a model stacks single samples itself "
+                     f"only in an environment with history=1")
+    if diffs:
+        raise LayoutMismatchError(
+            f"{source} was trained on a different observation layout than this environment's: "
+            + "; ".join(diffs) + ". Build the environment with the options recorded in the "
+            "model's run.json (env_config), or retrain.")
+    return hm if hm != he else 0
+
+
+class HistoryStack:
+    """Rebuilds ``history``-sample observations from single-sample ones (``history=1``),
+    exactly as the environment stacks them. Call once per environment step."""
+
+    def __init__(self, history: int, n_features: int, n_extra: int):
+        self.history, self.nf, self.n_extra = int(history), int(n_features), int(n_extra)
+        self._buf: np.ndarray | None = None
+        self._fresh: np.ndarray | None = None
+
+    def reset(self, rows: np.ndarray | None = None) -> None:
+        """Mark rows (default: all) as starting a new episode at their next observation."""
+        if self._fresh is None:
+            return
+        if rows is None:
+            self._fresh[:] = True
+        else:
+            self._fresh[np.asarray(rows)] = True
+
+    def __call__(self, obs: np.ndarray, time_index: int) -> np.ndarray:
+        b = obs.shape[0]
+        if self._buf is None or self._buf.shape[0] != b:
+            self._buf = np.zeros((b, self.history, self.nf), dtype=obs.dtype)
+            self._fresh = np.ones(b, dtype=bool)
+        sample = obs[:, :self.nf]
+        # a new episode: told so, or its time feature is 0 (the reset sample)
+        fresh = self._fresh | (sample[:, time_index] == 0.0)
+        self._buf[~fresh, :-1] = self._buf[~fresh, 1:]
+        self._buf[~fresh, -1] = sample[~fresh]
+        self._buf[fresh] = sample[fresh, None, :]
+        self._fresh[:] = False
+        return np.concatenate([self._buf.reshape(b, -1), obs[:, self.nf:]], axis=1)
+
+
+class LearnedPolicy(Policy):
+    """Base of trained policies: checks the layout and stacks the history when needed.
+    Subclasses implement :meth:`act_model` on observations in the model's layout."""
+
+    name = "learned"
+
+    def __init__(self, env_layout: Mapping[str, Any], model_layout: Mapping[str, Any],
+                 source: str = "the model"):
+        super().__init__(env_layout)
+        self.model_layout = dict(model_layout)
+        stack = check_layout(model_layout, env_layout, source)
+        nf = len(env_layout["features"])
+        self._stack = (HistoryStack(stack, nf, len(env_layout.get("param_features", [])))
+                       if stack else None)
+        self._time_index = [f["name"] for f in env_layout["features"]].index("time")
+
+    def begin_episodes(self, conditions) -> None:
+        if self._stack is not None:
+            self._stack.reset()
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        if self._stack is not None and episode_start is not None:
+            self._stack.reset(np.flatnonzero(np.asarray(episode_start, dtype=bool).reshape(-1)))
+        return super().predict(obs, state, episode_start, deterministic)
+
+    def model_obs(self, obs: np.ndarray) -> np.ndarray:
+        """``obs`` (B, env size) in the model's layout (stacked when needed)."""
+        if self._stack is None:
+            return obs
+        return self._stack(obs, self._time_index)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.act_model(self.model_obs(obs))
+
+    def act_model(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class SB3Policy(LearnedPolicy):
+    """A saved stable-baselines3 model (PPO, DQN, A2C) behind the common interface, acting
+    deterministically."""
+
+    name = "sb3"
+
+    def __init__(self, env_layout: Mapping[str, Any], model, model_layout: Mapping[str, Any] |
+                 None = None, source: str = "the model"):
+        if model_layout is None:  # an SB3 zip from elsewhere: only the size can be checked
+            shape = tuple(model.observation_space.shape)
+            if shape != (int(env_layout["size"]),):
+                raise LayoutMismatchError(
+                    f"{source} expects observations of shape {shape}, the environment gives "
+                    f"({env_layout['size']},): its observation layout differs")
+            model_layout = env_layout
+        super().__init__(env_layout, model_layout, source)
+        shape = tuple(model.observation_space.shape)
+        if shape != (int(self.model_layout["size"]),):
+            raise LayoutMismatchError(f"{source}: the network takes {shape}, its recorded layout "
+                                      f"has size {self.model_layout['size']}")
+        self.model = model
+
+    def act_model(self, obs: np.ndarray) -> np.ndarray:
+        a, _ = self.model.predict(obs, deterministic=True)
+        return a
+
+
+def read_run(path: Path) -> dict[str, Any] | None:
+    """The ``run.json`` of a model file's run directory (the file's folder), if any."""
+    p = path if path.is_dir() else path.parent
+    f = p / RUN_FILE
+    if f.is_file():
+        with open(f) as fh:
+            return json.load(fh)
+    return None

@@ -1,0 +1,79 @@
+"""agents/learned.py: observation layouts of saved models against environments, and the history a
+policy stacks itself in a ``history=1`` environment."""
+import numpy as np
+import pytest
+
+from agents.base import run_first_episodes
+from agents.learned import HistoryStack, LayoutMismatchError, LearnedPolicy, check_layout
+from pneugym.envs import Conditions
+from pneugym.envs.cutoff import CutOffVectorEnv
+
+CONDS = [Conditions(supply_pressure_gauge_pa=p, load_mass_kg=m, position_noise_m=3e-5,
+                    pressure_noise_pa=400.0) for p, m in ((1.5e5, 10.0), (4e5, 25.0))]
+
+
+def layout(**cfg):
+    return CutOffVectorEnv(num_envs=1, **cfg).observation_layout()
+
+
+def test_same_layout_needs_no_stacking():
+    assert check_layout(layout(history=4), layout(history=4)) == 0
+    assert check_layout(layout(), layout()) == 0
+
+
+def test_history_is_stacked_only_from_single_samples():
+    assert check_layout(layout(history=8), layout(history=1)) == 8
+    with pytest.raises(LayoutMismatchError, match="history 8 .model. vs 2 .env."):
+        check_layout(layout(history=8), layout(history=2))
+
+
+@pytest.mark.parametrize("cfg, what", [
+    ({"time_limit_s": 8.0}, "time_limit_s"),
+    ({"observe_params": True}, "observe_params"),
+    ({"control_period_s": 0.01}, "control_period_s"),
+])
+def test_mismatches_are_named(cfg, what):
+    with pytest.raises(LayoutMismatchError, match=what):
+        check_layout(layout(history=4), layout(history=1, **cfg), "model m.zip")
+
+
+def test_stacked_single_samples_equal_the_environments_history():
+    """A history=1 environment plus HistoryStack gives exactly the history=4 observations
+    (same seeds, same conditions, same noise), through an autoreset too."""
+    n, k = len(CONDS), 4
+    e1 = CutOffVectorEnv(num_envs=n, history=1, preset="randomized")
+    e4 = CutOffVectorEnv(num_envs=n, history=k, preset="randomized")
+    o1, _ = e1.reset(seed=3, options={"conditions": CONDS})
+    o4, _ = e4.reset(seed=3, options={"conditions": CONDS})
+    stack = HistoryStack(k, 7, 0)
+    tidx = [f["name"] for f in e1.observation_layout()["features"]].index("time")
+    rng = np.random.default_rng(0)
+    resets = 0
+    for step in range(700):
+        np.testing.assert_array_equal(stack(o1, tidx), o4)
+        a = (rng.random(n) < 0.01).astype(np.int64)
+        o1, _, te, tr, _ = e1.step(a)
+        o4, _, te4, tr4, _ = e4.step(a)
+        np.testing.assert_array_equal(te | tr, te4 | tr4)
+        resets += int((te | tr).sum())
+    assert resets >= 2  # the comparison crossed autoresets
+
+
+class _Recorder(LearnedPolicy):
+    def __init__(self, env_layout, model_layout):
+        super().__init__(env_layout, model_layout)
+        self.seen = []
+
+    def act_model(self, obs):
+        self.seen.append(obs.copy())
+        return np.zeros(obs.shape[0], dtype=np.int64)
+
+
+def test_learned_policy_sees_its_own_layout_in_a_history1_env():
+    env = CutOffVectorEnv(num_envs=2, autoreset=False)
+    pol = _Recorder(env.observation_layout(), layout(history=3))
+    run_first_episodes(env, pol, CONDS, 5)
+    assert all(o.shape == (2, 21) for o in pol.seen)
+    first = pol.seen[0]
+    np.testing.assert_array_equal(first[:, :7], first[:, 14:])  # a reset repeats the sample
+    np.testing.assert_array_equal(pol.seen[2][:, 7:14], pol.seen[1][:, 14:])  # shifted

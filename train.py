@@ -1,0 +1,661 @@
+"""Train learned cut-off policies: stable-baselines3 PPO and DQN on the batched environment, and
+the ESAC neural predictor (thesis 6.8).
+
+    python train.py --algo ppo  --preset randomized --timesteps 1500000 --seed 0 --out runs/ppo
+    python train.py --algo dqn  --out runs/dqn
+    python train.py --algo esac --out runs/esac          # --timesteps = rollouts of training data
+    python train.py --algo ppo --out runs/ppo --resume   # continue from the last checkpoint
+    python train.py --algo ppo --budget quick            # the quick budget of configs/ppo.yaml
+    python train.py --algo ppo --set algo.learning_rate=1e-4 --set env.history=8
+
+Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``quick`` one that
+overrides it); ``--set key.sub=value`` overrides single entries. Every run directory holds
+``run.json`` (configuration, seed, package versions, observation layout, status, validation
+history), the model (``model.zip`` / ``best_model.zip`` for SB3, ``model.pt`` for ESAC), the last
+checkpoints and the logs (``progress.csv``; TensorBoard files under ``tb/`` when ``tensorboard`` is
+installed). Files are written to a temporary name and renamed, so an interrupted run leaves its last
+good checkpoint usable. Training seeds stay below 1,000,000; evaluation uses the seeds above.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent
+CONFIG_DIR = ROOT / "configs"
+ALGOS = ("ppo", "dqn", "esac")
+DEFAULT_POLICIES = ("esac", "ppo", "dqn")  # what evaluate.py trains on demand
+MAX_TRAINING_SEED = 1_000_000  # evaluation seeds start here
+RUN_FILE = "run.json"
+
+
+# ------------------------------------------------------------------------------------------------
+# configuration and files
+# ------------------------------------------------------------------------------------------------
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(dict(base))
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) \
+            else copy.deepcopy(v)
+    return out
+
+
+def load_config(algo: str, budget: str = "default", path: str | Path | None = None,
+                overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """The configuration of ``algo``: ``configs/<algo>.yaml``'s ``default`` section, merged with the
+    ``budget`` section (e.g. ``quick``), then ``overrides`` (``"a.b=value"``, value parsed as YAML)."""
+    import yaml
+
+    path = Path(path) if path else CONFIG_DIR / f"{algo}.yaml"
+    with open(path) as f:
+        doc = yaml.safe_load(f)
+    if not isinstance(doc, Mapping) or "default" not in doc:
+        raise ValueError(f"{path}: expected a mapping with a 'default' section")
+    if budget != "default" and budget not in doc:
+        raise ValueError(f"{path} has no budget {budget!r}; it has {sorted(doc)}")
+    cfg = _merge(doc["default"], doc.get(budget, {}) if budget != "default" else {})
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"--set {item!r}: expected key.sub=value")
+        key, val = item.split("=", 1)
+        node = cfg
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"--set {item!r}: {p!r} is not a section")
+        node[parts[-1]] = _parse_value(val)
+    cfg["algo_name"] = algo
+    cfg["budget"] = budget
+    return cfg
+
+
+def _parse_value(text: str) -> Any:
+    """A ``--set`` value as YAML, with numbers like ``1e-4`` (a string in YAML 1.1) as floats."""
+    import yaml
+
+    v = yaml.safe_load(text)
+    if isinstance(v, str):
+        try:
+            return float(v)
+        except ValueError:
+            pass
+    return v
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    """Write JSON to a temporary file and rename it over ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False, default=_jsonable))
+    os.replace(tmp, path)
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, Path):
+        return str(v)
+    return repr(v)
+
+
+def atomic_save_sb3(model, path: Path) -> None:
+    """``model.save`` to a temporary name, then rename (never a half-written zip at ``path``)."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.zip")
+    model.save(tmp)
+    os.replace(tmp, path)
+
+
+def read_run(out: Path) -> dict[str, Any] | None:
+    f = Path(out) / RUN_FILE
+    return json.loads(f.read_text()) if f.is_file() else None
+
+
+def _threads(cfg: Mapping[str, Any]) -> None:
+    """One thread each for numba and torch unless configured (the machine is small and shared;
+    numba's parallel batch kernel is slower than one thread on a busy machine)."""
+    import numba
+    import torch
+
+    numba.set_num_threads(max(1, min(int(cfg.get("numba_threads", 1)), numba.config.NUMBA_NUM_THREADS)))
+    torch.set_num_threads(int(cfg.get("torch_threads", 1)))
+
+
+def _check_seed(name: str, seed: int, span: int = 1) -> None:
+    if not (0 <= seed and seed + span <= MAX_TRAINING_SEED):
+        raise ValueError(f"{name} seeds {seed}..{seed + span - 1} must lie in [0, "
+                         f"{MAX_TRAINING_SEED}): the seeds from {MAX_TRAINING_SEED} up are "
+                         f"reserved for evaluation")
+
+
+# ------------------------------------------------------------------------------------------------
+# validation conditions and their references
+# ------------------------------------------------------------------------------------------------
+def validation_conditions(preset: str, n: int, seed: int) -> list:
+    """``n`` fixed conditions drawn from ``preset`` (each from ``default_rng([seed, i])``)."""
+    from pneugym.envs.conditions import resolve
+
+    space = resolve(preset)
+    return [space.sample(np.random.default_rng([seed, i])) for i in range(n)]
+
+
+def validation_references(conds: Sequence[Any], env_config: Mapping[str, Any], seed: int,
+                          cache_dir: Path | None) -> dict[str, float]:
+    """Mean returns of the conventional scheme and the (privileged) oracle on the validation
+    conditions, for the oracle fraction in the logs; cached on disk."""
+    from agents.esac import source_hash
+
+    key = hashlib.sha256(json.dumps([[c.to_dict() for c in conds], sorted(
+        (k, repr(v)) for k, v in env_config.items() if k != "history"), seed, source_hash()],
+        sort_keys=True).encode()).hexdigest()[:16]
+    path = cache_dir / f"validation-references-{key}.json" if cache_dir else None
+    if path is not None and path.is_file():
+        return json.loads(path.read_text())
+    from agents import ConventionalPolicy, OraclePolicy
+    from agents.base import run_first_episodes
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    cfg = {k: v for k, v in env_config.items() if k not in ("preset", "conditions")}
+    env = CutOffVectorEnv(num_envs=len(conds), autoreset=False, **cfg)
+    refs = {}
+    for name, pol in (("conventional", ConventionalPolicy.for_env(env)),
+                      ("oracle", OraclePolicy.for_env(env))):
+        refs[name] = float(np.mean(run_first_episodes(env, pol, conds, seed)["objective"]))
+    if path is not None:
+        atomic_write_json(path, refs)
+    return refs
+
+
+def oracle_fraction(ret: float, refs: Mapping[str, float]) -> float | None:
+    gap = refs["oracle"] - refs["conventional"]
+    return (ret - refs["conventional"]) / gap if abs(gap) > 1e-12 else None
+
+
+# ------------------------------------------------------------------------------------------------
+# stable-baselines3
+# ------------------------------------------------------------------------------------------------
+def _sb3_parts():
+    """SB3 classes and the callbacks (imported lazily: ``import train`` stays light)."""
+    from stable_baselines3 import DQN, PPO
+    from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+    from pneugym.envs.sb3 import CutOffVecEnv
+
+    class LatchedDQN(DQN):
+        """DQN whose exploration knows the cut-off is latched: a random action is a cut only
+        with probability ``explore_cut_prob`` (else keep), drawn per environment, so that a
+        random early cut does not end the useful part of most episodes. Loads as a plain DQN."""
+
+        explore_cut_prob = 0.02
+
+        def _random_actions(self, n: int) -> np.ndarray:
+            return (np.random.rand(n) < self.explore_cut_prob).astype(np.int64)
+
+        def predict(self, observation, state=None, episode_start=None, deterministic=False):
+            action, state = self.policy.predict(observation, state, episode_start, deterministic)
+            if not deterministic:
+                action = np.array(action)
+                if action.ndim:
+                    rnd = np.random.rand(action.shape[0]) < self.exploration_rate
+                    action[rnd] = self._random_actions(int(rnd.sum()))
+                elif np.random.rand() < self.exploration_rate:
+                    action = self._random_actions(1)[0]
+            return action, state
+
+        def _sample_action(self, learning_starts, action_noise=None, n_envs=1):
+            if self.num_timesteps < learning_starts:
+                a = self._random_actions(n_envs)
+                return a, a
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+
+    class TrainingVecEnv(CutOffVecEnv):
+        """:class:`CutOffVecEnv`; with ``conditions`` and ``seed`` it always resets to them (the
+        validation set). One class for both, so that SB3's EvalCallback sees the same type."""
+
+        def __init__(self, num_envs=8, conditions=None, seed=None, **config):
+            n = len(conditions) if conditions is not None else num_envs
+            super().__init__(num_envs=n, **config)
+            self._fixed = None if conditions is None else list(conditions)
+            self._fixed_seed = seed
+
+        def reset(self):
+            if self._fixed is None:
+                return super().reset()
+            obs, _ = self.venv.reset(seed=self._fixed_seed, options={"conditions": self._fixed})
+            self._reset_seeds()
+            self._reset_options()
+            return obs
+
+    class ProgressBar(BaseCallback):
+        """A tqdm bar over the run's timesteps (SB3's own needs ``rich``)."""
+
+        def __init__(self, total: int, disable: bool = False):
+            super().__init__()
+            self.total, self.disable, self.bar = total, disable, None
+
+        def _on_training_start(self):
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, initial=min(self.num_timesteps, self.total),
+                            unit="step", desc="train", disable=self.disable, smoothing=0.05)
+
+        def _on_step(self):
+            self.bar.update(self.training_env.num_envs)
+            return True
+
+        def _on_training_end(self):
+            self.bar.close()
+
+    class Checkpoints(BaseCallback):
+        """Save the model (and DQN's replay buffer if asked) every ``every`` steps, atomically;
+        ``run.json`` then names the new checkpoint; the oldest beyond ``keep`` are removed."""
+
+        def __init__(self, out: Path, every: int, keep: int, replay: bool, record):
+            super().__init__()
+            self.out, self.every, self.keep, self.replay = out, every, keep, replay
+            self.record = record
+            self._next = None
+
+        def _on_training_start(self):
+            self._next = (self.num_timesteps // self.every + 1) * self.every
+
+        def _on_step(self):
+            if self.num_timesteps >= self._next:
+                self._next += self.every
+                self.save()
+            return True
+
+        def save(self):
+            d = self.out / "checkpoints"
+            d.mkdir(parents=True, exist_ok=True)
+            path = d / f"ckpt_{self.num_timesteps:09d}.zip"
+            atomic_save_sb3(self.model, path)
+            if self.replay and hasattr(self.model, "save_replay_buffer"):
+                rb = d / f"replay_{self.num_timesteps:09d}.pkl"
+                tmp = d / f".replay.{os.getpid()}.tmp.pkl"
+                self.model.save_replay_buffer(tmp)
+                os.replace(tmp, rb)
+            self.record(checkpoint=str(path.relative_to(self.out)),
+                        timesteps_done=int(self.num_timesteps))
+            ckpts = sorted(d.glob("ckpt_*.zip"))
+            for old in ckpts[:-self.keep]:
+                old.unlink(missing_ok=True)
+                (d / old.name.replace("ckpt_", "replay_").replace(".zip", ".pkl")).unlink(
+                    missing_ok=True)
+
+    class AfterEval(BaseCallback):
+        """After each validation: log the oracle fraction, save a new best model atomically and
+        record the validation history in ``run.json``."""
+
+        def __init__(self, out: Path, refs, record, layout):
+            super().__init__()
+            self.out, self.refs, self.record, self.layout = out, refs, record, layout
+            self.history: list[dict[str, Any]] = []
+            self.best = -math.inf
+
+        def _on_step(self):
+            self.report(float(self.parent.last_mean_reward))
+            return True
+
+        def report(self, ret: float) -> None:
+            frac = oracle_fraction(ret, self.refs)
+            self.logger.record("validation/return", ret)
+            if frac is not None:
+                self.logger.record("validation/oracle_fraction", frac)
+            self.logger.dump(self.num_timesteps)
+            row = {"timesteps": int(self.num_timesteps), "return": ret, "oracle_fraction": frac}
+            self.history.append(row)
+            if ret > self.best:
+                self.best = ret
+                self.model.pneugym_layout = self.layout
+                atomic_save_sb3(self.model, self.out / "best_model.zip")
+                row["new_best"] = True
+            self.record(validation=self.history,
+                        best=max(self.history, key=lambda r: r["return"]))
+            from tqdm import tqdm
+            fr = f"{frac:.3f}" if frac is not None else "-"
+            tqdm.write(f"validation @ {self.num_timesteps}: return {ret:.4f}, oracle fraction "
+                       f"{fr}{'  (new best)' if row.get('new_best') else ''}")
+
+    return dict(PPO=PPO, DQN=LatchedDQN, EvalCallback=EvalCallback, VecEnv=TrainingVecEnv,
+                ProgressBar=ProgressBar,
+                Checkpoints=Checkpoints, AfterEval=AfterEval)
+
+
+def _schedule(v: Any):
+    """A learning rate: a number, or ``"lin_<x>"`` for a linear decay from ``x`` to 0."""
+    if isinstance(v, str) and v.startswith("lin_"):
+        x = float(v[4:])
+        return lambda progress: progress * x
+    return float(v)
+
+
+def _logger(out: Path, resume: bool):
+    from stable_baselines3.common.logger import configure
+
+    formats = ["csv"]
+    try:
+        import tensorboard  # noqa: F401
+        formats.append("tensorboard")
+    except ImportError:
+        pass
+    if resume and (out / "progress.csv").exists():  # keep the first part of the log
+        n = 1
+        while (out / f"progress.{n}.csv").exists():
+            n += 1
+        os.replace(out / "progress.csv", out / f"progress.{n}.csv")
+    return configure(str(out), formats), formats
+
+
+def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress: bool,
+              record) -> dict[str, Any]:
+    """PPO or DQN per ``cfg``; returns the summary written into ``run.json``."""
+    import torch
+
+    P = _sb3_parts()
+    algo = cfg["algo_name"]
+    env_cfg = dict(cfg.get("env", {}))
+    num_envs = int(env_cfg.pop("num_envs", 16))
+    env_cfg["preset"] = cfg["preset"]
+    venv = P["VecEnv"](num_envs=num_envs, **env_cfg)
+    layout = venv.observation_layout()
+    val = cfg["validation"]
+    _check_seed("validation", int(val["seed"]), int(val["episodes"]))
+    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]))
+    eval_env = P["VecEnv"](conditions=conds, seed=int(val["seed"]), **env_cfg)
+    print(f"validation references ({len(conds)} conditions, conventional and oracle) ...",
+          flush=True)
+    refs = validation_references(conds, env_cfg, int(val["seed"]),
+                                 Path(cfg.get("cache_dir", "runs/.cache")))
+    record(validation_references=refs)
+    cls = P["PPO"] if algo == "ppo" else P["DQN"]
+    total = int(cfg["timesteps"])
+    kwargs = dict(cfg.get("algo", {}))
+    if "learning_rate" in kwargs:
+        kwargs["learning_rate"] = _schedule(kwargs["learning_rate"])
+    if algo == "dqn":
+        P["DQN"].explore_cut_prob = float(cfg.get("explore_cut_prob", 0.02))
+    run = read_run(out) or {}
+    ckpt = run.get("checkpoint") if resume else None
+    logger, formats = _logger(out, resume and ckpt is not None)
+    record(log_formats=formats)
+    if ckpt:
+        print(f"resuming from {out / ckpt}", flush=True)
+        model = cls.load(out / ckpt, env=venv, device="cpu", **{
+            k: v for k, v in kwargs.items() if k in ("learning_rate",)})
+        old = model.__dict__.get("pneugym_layout")
+        if old is not None and old != layout:
+            from agents.learned import check_layout
+            check_layout(old, layout, f"checkpoint {out / ckpt}")
+        if algo == "dqn":
+            rb = out / ckpt.replace("ckpt_", "replay_").replace(".zip", ".pkl")
+            if rb.exists():
+                model.load_replay_buffer(rb)
+        # a fresh stream of training conditions after the resume
+        venv.seed(seed + 7919 * (model.num_timesteps // 1000 + 1) % 100_000)
+        model._last_obs = None
+    else:
+        model = cls("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
+                    policy_kwargs=cfg.get("policy_kwargs"), **kwargs)
+        p_cut = cfg.get("init_cut_prob")
+        if algo == "ppo" and p_cut:  # start from a policy that cuts rarely (latched action)
+            with torch.no_grad():
+                model.policy.action_net.bias[:] = torch.tensor(
+                    [0.0, math.log(float(p_cut) / (1.0 - float(p_cut)))])
+        venv.seed(seed)
+    model.set_logger(logger)
+    model.pneugym_layout = layout
+    done0 = int(model.num_timesteps)
+    remaining = max(0, total - done0)
+    after = P["AfterEval"](out, refs, record, layout)
+    if resume and run.get("validation"):
+        after.history = list(run["validation"])
+        after.best = max(r["return"] for r in after.history)
+    every = max(1, int(cfg["eval_every"]) // num_envs)
+    evalcb = P["EvalCallback"](eval_env, n_eval_episodes=len(conds), eval_freq=every,
+                               deterministic=True, callback_after_eval=after, verbose=0,
+                               warn=False)
+    ck = P["Checkpoints"](out, int(cfg["checkpoint_every"]), int(cfg.get("keep_checkpoints", 2)),
+                          bool(cfg.get("save_replay_buffer", False)), record)
+    bar = P["ProgressBar"](total, disable=not progress)
+    t0 = time.perf_counter()
+    record(status="running", timesteps=total)
+    if remaining:
+        model.learn(remaining, callback=[evalcb, ck, bar], reset_num_timesteps=False,
+                    progress_bar=False)
+    wall = time.perf_counter() - t0
+    if not after.history or after.history[-1]["timesteps"] != model.num_timesteps:
+        # validate the final model too, so that the best model is chosen among all
+        from stable_baselines3.common.evaluation import evaluate_policy
+        rets, _ = evaluate_policy(model, eval_env, n_eval_episodes=len(conds), deterministic=True,
+                                  return_episode_rewards=True, warn=False)
+        after.init_callback(model)
+        after.report(float(np.mean(rets)))
+    atomic_save_sb3(model, out / "model.zip")
+    ck.init_callback(model)
+    ck.save()
+    prev_wall = float(run.get("train_wall_s", 0.0)) if ckpt else 0.0
+    best = max(after.history, key=lambda r: r["return"])
+    return {"model": "best_model.zip", "final_model": "model.zip", "timesteps_done":
+            int(model.num_timesteps), "train_wall_s": prev_wall + wall,
+            "steps_per_s": (model.num_timesteps - done0) / wall if wall > 0 else None,
+            "best": best, "observation_layout": layout,
+            "env_config": {**env_cfg, "num_envs": num_envs}}
+
+
+# ------------------------------------------------------------------------------------------------
+# ESAC
+# ------------------------------------------------------------------------------------------------
+def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
+               ) -> dict[str, Any]:
+    """Rollouts (cached), the predictor, its accuracy on held-out conditions, the rule tuned on the
+    validation conditions; writes ``model.pt``, ``accuracy.json``, ``accuracy.png``,
+    ``rule_sweep.json``."""
+    import itertools
+
+    from agents import esac
+    from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.provenance import provenance
+
+    history = int(cfg["env"]["history"])
+    cache = Path(cfg.get("cache_dir", "runs/.cache"))
+    n_train = int(cfg["timesteps"])
+    test = cfg["test"]
+    val = cfg["validation"]
+    _check_seed("training", seed, n_train)
+    _check_seed("test", int(test["seed"]), int(test["episodes"]))
+    _check_seed("validation", int(val["seed"]), int(val["episodes"]))
+    if seed < int(test["seed"]) + int(test["episodes"]) and int(test["seed"]) < seed + n_train:
+        raise ValueError(f"training seeds {seed}..{seed + n_train - 1} overlap the held-out test "
+                         f"seeds from {test['seed']}: choose another --seed")
+    env_cfg = {"history": history}
+    layout = CutOffVectorEnv(num_envs=1, **env_cfg).observation_layout()
+    t0 = time.perf_counter()
+    print(f"rollouts: {n_train} for training, {test['episodes']} held out (cached in {cache})",
+          flush=True)
+    data = esac.rollouts(cache, n_train, seed, history, cfg["preset"], progress=progress)
+    held = esac.rollouts(cache, int(test["episodes"]), int(test["seed"]), history, cfg["preset"],
+                         progress=progress)
+    t_data = time.perf_counter() - t0
+    stroke = float(layout["features"][0]["scale"])
+    y, mask = esac.targets(data, stroke)
+    fit = cfg["fit"]
+    net, hist = esac.fit(data["obs"], y, mask, hidden=tuple(fit["hidden"]),
+                         epochs=int(fit["epochs"]), batch_size=int(fit["batch_size"]),
+                         lr=float(fit["lr"]), weight_decay=float(fit.get("weight_decay", 0.0)),
+                         seed=seed, patience=int(fit.get("patience", 15)), progress=progress)
+    pred = esac.ESACPredictor(net, layout)
+    acc = esac.accuracy(pred, held)
+    atomic_write_json(out / "accuracy.json", acc)
+    esac.plot_accuracy(pred, held, out / "accuracy.png",
+                       title=f"ESAC on {acc['samples']} held-out rollouts (history {history})")
+    print("held-out accuracy: " + ", ".join(
+        f"{k} {v:.4g}" for k, v in acc.items() if isinstance(v, float)), flush=True)
+    # the rule: tuned on the validation conditions
+    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]))
+    grid_cfg = cfg["rule_grid"]
+    keys = list(grid_cfg)
+    grid = [dict(zip(keys, vals)) for vals in itertools.product(*(grid_cfg[k] for k in keys))]
+    t1 = time.perf_counter()
+    sweep = esac.sweep_rule(pred, conds, grid, seed=int(val["seed"]))
+    refs = validation_references(conds, {**env_cfg, "preset": cfg["preset"]}, int(val["seed"]),
+                                 cache)
+    max_stall = float(cfg.get("max_stall_rate", 0.0))
+    ok = [r for r in sweep if r["stall_rate"] <= max_stall] or sweep
+    best = max(ok, key=lambda r: r["return_mean"])
+    rule = {**esac.RULE_DEFAULTS, **{k: best[k] for k in keys}}
+    for r in sweep:
+        r["oracle_fraction"] = oracle_fraction(r["return_mean"], refs)
+    atomic_write_json(out / "rule_sweep.json", {"grid": sweep, "chosen": best,
+                                                "references": refs})
+    t_sweep = time.perf_counter() - t1
+    meta = {"n_in": int(data["obs"].shape[1]), "hidden": list(fit["hidden"]), "layout": layout,
+            "rule": rule, "accuracy": acc, "fit": {k: v for k, v in hist.items()
+                                                    if k not in ("train", "val")},
+            "data": {"train_rollouts": int(data["obs"].shape[0]), "seed": seed,
+                     "test_rollouts": int(held["obs"].shape[0]), "test_seed": int(test["seed"]),
+                     "preset": cfg["preset"], "pneugym_sources": esac.source_hash()},
+            "provenance": provenance()}
+    esac.save(out / "model.pt", net, meta)
+    best_frac = oracle_fraction(best["return_mean"], refs)
+    print(f"rule tuned on {len(conds)} validation conditions: {rule} -> return "
+          f"{best['return_mean']:.4f} (oracle fraction "
+          f"{best_frac if best_frac is None else round(best_frac, 3)}), stall "
+          f"{best['stall_rate']:.3f}", flush=True)
+    return {"model": "model.pt", "train_wall_s": time.perf_counter() - t0,
+            "data_wall_s": t_data, "fit_wall_s": hist["fit_wall_s"], "sweep_wall_s": t_sweep,
+            "accuracy": acc, "rule": rule, "validation_references": refs,
+            "best": {"return": best["return_mean"], "oracle_fraction": best_frac,
+                     "stall_rate": best["stall_rate"]},
+            "fit": {k: v for k, v in hist.items() if k not in ("train", "val")},
+            "loss_history": {"train": hist["train"], "val": hist["val"]},
+            "observation_layout": layout, "env_config": env_cfg}
+
+
+# ------------------------------------------------------------------------------------------------
+# driver
+# ------------------------------------------------------------------------------------------------
+def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int | None = None,
+          seed: int = 0, resume: bool = False, budget: str = "default",
+          config: str | Path | None = None, overrides: Sequence[str] = (),
+          progress: bool = True) -> dict[str, Any]:
+    """Train ``algo`` into ``out``; returns the final ``run.json`` content."""
+    from pneugym.provenance import provenance
+
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; choose one of {ALGOS}")
+    _check_seed("training", seed)
+    out = Path(out)
+    cfg = load_config(algo, budget, config, overrides)
+    if preset is not None:
+        cfg["preset"] = preset
+    if timesteps is not None:
+        cfg["timesteps"] = int(timesteps)
+    from pneugym.envs.conditions import PRESETS
+    if cfg["preset"] not in PRESETS:
+        raise ValueError(f"unknown preset {cfg['preset']!r}; choose one of {sorted(PRESETS)}")
+    prev = read_run(out)
+    if prev and not resume and prev.get("status") in ("running", "finished"):
+        if any(out.iterdir()) and algo != prev.get("algo"):
+            raise ValueError(f"{out} holds a {prev.get('algo')} run; choose another --out")
+    if resume and prev is not None:
+        if prev.get("algo") != algo:
+            raise ValueError(f"--resume: {out} holds a {prev.get('algo')} run, not {algo}")
+        if prev.get("seed") != seed:
+            print(f"--resume: using the run's seed {prev['seed']} (not {seed})", flush=True)
+            seed = int(prev["seed"])
+    _threads(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    run: dict[str, Any] = dict(prev) if (resume and prev) else {}
+    run.update({"algo": algo, "seed": seed, "preset": cfg["preset"], "budget": budget,
+                "config": cfg, "command": [Path(sys.argv[0]).name, *sys.argv[1:]],
+                "provenance": provenance(), "training_seeds_below": MAX_TRAINING_SEED})
+    run.setdefault("started_utc", run["provenance"]["created_utc"])
+
+    def record(**kw: Any) -> None:
+        run.update(kw)
+        atomic_write_json(out / RUN_FILE, run)
+
+    record(status="running")
+    t0 = time.perf_counter()
+    if algo == "esac":
+        summary = train_esac(cfg, out, seed, progress, record)
+    else:
+        summary = train_sb3(cfg, out, seed, resume, progress, record)
+    summary["total_wall_s"] = time.perf_counter() - t0 + (
+        float(prev.get("total_wall_s", 0.0)) if (resume and prev) else 0.0)
+    record(status="finished", **summary)
+    return run
+
+
+def model_path(run_dir: str | Path) -> Path | None:
+    """The model file of a finished run directory, or None."""
+    run = read_run(Path(run_dir))
+    if not run or run.get("status") != "finished":
+        return None
+    p = Path(run_dir) / run["model"]
+    return p if p.is_file() else None
+
+
+def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path = "runs",
+                   budget: str = "quick", seed: int = 0, progress: bool = True
+                   ) -> dict[str, Path]:
+    """The model of each of ``names`` under ``runs_dir/<name>``, training those that are missing
+    with ``budget`` (evaluate.py's train-on-demand)."""
+    paths = {}
+    for name in names:
+        d = Path(runs_dir) / name
+        p = model_path(d)
+        if p is None:
+            print(f"== no trained {name} under {d}: training it ({budget} budget)", flush=True)
+            train(name, d, seed=seed, budget=budget, progress=progress)
+            p = model_path(d)
+        paths[name] = p
+    return paths
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--algo", required=True, choices=ALGOS)
+    ap.add_argument("--preset", default=None, help="condition preset (default: the config's)")
+    ap.add_argument("--timesteps", type=int, default=None,
+                    help="environment steps (ppo, dqn) or training rollouts (esac)")
+    ap.add_argument("--seed", type=int, default=0, help="training seed (< 1,000,000)")
+    ap.add_argument("--out", default=None, help="run directory (default runs/<algo>)")
+    ap.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    ap.add_argument("--budget", default="default", help="section of the config (default, quick)")
+    ap.add_argument("--config", default=None, help="YAML file (default configs/<algo>.yaml)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a config entry, e.g. algo.learning_rate=1e-4")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        run = train(args.algo, args.out or f"runs/{args.algo}", args.preset, args.timesteps,
+                    args.seed, args.resume, args.budget, args.config, args.set,
+                    not args.no_progress)
+    except ValueError as exc:
+        ap.error(str(exc))
+    best = run.get("best", {})
+    frac = best.get("oracle_fraction")
+    print(f"done in {run['total_wall_s']:.0f} s: {args.out or f'runs/{args.algo}'}/{run['model']}"
+          f" (validation return {best.get('return', float('nan')):.4f}, oracle fraction "
+          f"{'-' if frac is None else f'{frac:.3f}'})")
+    return run
+
+
+if __name__ == "__main__":
+    main()
