@@ -149,8 +149,8 @@ def markdown(rep: dict[str, Any]) -> str:
           "|---|---|---|---|---|---|---|---|"]
     for r in rep["runs"]:
         L.append(f"| {r['name']} | {r['role']} | {r['description'] or '-'} | {r['samples']} | "
-                 f"{r['supply_pressure_gauge_pa'] / 1e5:.3g} | {_fmt(r['t_motion_s'])} s | "
-                 f"{_fmt(r['t_arrival_s'])} s | {_fmt(r['t_cut_effective_s'])} s |")
+                 f"{r['supply_pressure_gauge_pa'] / 1e5:.3g} | {_sec(r['t_motion_s'])} | "
+                 f"{_sec(r['t_arrival_s'])} | {_sec(r['t_cut_effective_s'])} |")
     L += ["", "Noise levels estimated from quiet segments: "
           + ", ".join(f"{c} {v:.3g} {UNITS[c]}" for c, v in rep["noise_sigma"].items()), ""]
     L += ["## Where the calibrated nominal model fails", ""]
@@ -192,6 +192,10 @@ def markdown(rep: dict[str, Any]) -> str:
           f"Workflow settings: {json.dumps(cfg)}. Wall time {rep['wall_time_s']:.1f} s. "
           f"Versions: {json.dumps(rep['provenance']['versions'])}; commit {rep['provenance']['git_commit']}.", ""]
     return "\n".join(L)
+
+
+def _sec(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4g} s"
 
 
 def _pct(v: float | None) -> str:
