@@ -73,8 +73,9 @@ def test_read_folder_sorted_and_unique_names(tmp_path):
     assert [r.name for r in runs] == ["a", "b"]
     with pytest.raises(MeasurementFormatError, match="unique"):
         read_runs([tmp_path / "a", tmp_path / "a.csv"])
+    (tmp_path / "empty").mkdir()
     with pytest.raises(MeasurementFormatError, match="no run"):
-        read_runs([tmp_path / "empty"] if (tmp_path / "empty").mkdir() is None else [])
+        read_runs([tmp_path / "empty"])
 
 
 def test_unknown_columns_and_keys_are_kept_and_ignored(run_files):
