@@ -296,12 +296,16 @@ def _sb3_parts():
                     missing_ok=True)
 
     class AfterEval(BaseCallback):
-        """After each validation: log the oracle fraction, save a new best model atomically and
-        record the validation history in ``run.json``."""
+        """After each validation of the EvalCallback (SB3's argmax decision): validate the
+        configured decision rule over its grid (one batched run), log the best return and its
+        oracle fraction, save a new best model atomically (with its decision), and record the
+        history in ``run.json``."""
 
-        def __init__(self, out: Path, refs, record, layout):
+        def __init__(self, out: Path, refs, record, layout, conds, env_cfg, seed, decision):
             super().__init__()
             self.out, self.refs, self.record, self.layout = out, refs, record, layout
+            self.conds, self.env_cfg, self.seed = conds, env_cfg, seed
+            self.rule, self.grid = decision["rule"], list(decision.get("grid", [0.5]))
             self.history: list[dict[str, Any]] = []
             self.best = -math.inf
 
@@ -309,29 +313,59 @@ def _sb3_parts():
             self.report(float(self.parent.last_mean_reward))
             return True
 
-        def report(self, ret: float) -> None:
+        def report(self, argmax_return: float | None) -> None:
+            rows = sweep_decisions(self.model, self.layout, self.conds, self.env_cfg, self.seed,
+                                   self.rule, self.grid)
+            top = max(rows, key=lambda r: r["return"])
+            ret = top["return"]
             frac = oracle_fraction(ret, self.refs)
             self.logger.record("validation/return", ret)
+            self.logger.record("validation/stall_rate", top["stall_rate"])
+            self.logger.record("validation/decision_value", top["value"])
             if frac is not None:
                 self.logger.record("validation/oracle_fraction", frac)
             self.logger.dump(self.num_timesteps)
-            row = {"timesteps": int(self.num_timesteps), "return": ret, "oracle_fraction": frac}
+            decision = {"rule": self.rule, "value": top["value"]}
+            row = {"timesteps": int(self.num_timesteps), "return": ret, "oracle_fraction": frac,
+                   "stall_rate": top["stall_rate"], "decision": decision,
+                   "argmax_return": argmax_return, "grid": rows}
             self.history.append(row)
+            self.model.pneugym_layout = self.layout
+            self.model.pneugym_decision = decision  # the latest weights' tuned decision
             if ret > self.best:
                 self.best = ret
-                self.model.pneugym_layout = self.layout
                 atomic_save_sb3(self.model, self.out / "best_model.zip")
                 row["new_best"] = True
             self.record(validation=self.history,
                         best=max(self.history, key=lambda r: r["return"]))
             from tqdm import tqdm
             fr = f"{frac:.3f}" if frac is not None else "-"
-            tqdm.write(f"validation @ {self.num_timesteps}: return {ret:.4f}, oracle fraction "
-                       f"{fr}{'  (new best)' if row.get('new_best') else ''}")
+            tqdm.write(f"validation @ {self.num_timesteps}: return {ret:.4f} ({self.rule} "
+                       f"{top['value']:g}), oracle fraction {fr}, stall {top['stall_rate']:.3f}"
+                       f"{'  (new best)' if row.get('new_best') else ''}")
 
     return dict(PPO=PPO, DQN=LatchedDQN, EvalCallback=EvalCallback, VecEnv=TrainingVecEnv,
                 ProgressBar=ProgressBar,
                 Checkpoints=Checkpoints, AfterEval=AfterEval)
+
+
+def sweep_decisions(model, layout: Mapping[str, Any], conds: Sequence[Any],
+                    env_cfg: Mapping[str, Any], seed: int, rule: str, grid: Sequence[float]
+                    ) -> list[dict[str, Any]]:
+    """Mean return and stall rate of ``model`` on ``conds`` under each value of its decision
+    ``rule`` (:class:`agents.learned.SB3Policy`), all in one batched run."""
+    from agents.base import run_first_episodes
+    from agents.learned import SB3Policy
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    n = len(conds)
+    env = CutOffVectorEnv(num_envs=n * len(grid), autoreset=False, **env_cfg)
+    pol = SB3Policy(env.observation_layout(), model, layout,
+                    decision={"rule": rule, "value": np.repeat(np.asarray(grid, float), n)})
+    out = run_first_episodes(env, pol, list(conds) * len(grid), seed)
+    return [{"value": float(v), "return": float(np.mean(out["objective"][k * n:(k + 1) * n])),
+             "stall_rate": float(np.mean(out["stalled"][k * n:(k + 1) * n]))}
+            for k, v in enumerate(grid)]
 
 
 def _schedule(v: Any):
@@ -393,8 +427,11 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     record(log_formats=formats)
     if ckpt:
         print(f"resuming from {out / ckpt}", flush=True)
-        model = cls.load(out / ckpt, env=venv, device="cpu", **{
-            k: v for k, v in kwargs.items() if k in ("learning_rate",)})
+        import warnings
+        with warnings.catch_warnings():  # n-step DQN: its buffer kwargs are saved, the warning is moot
+            warnings.filterwarnings("ignore", message=".*n_steps=.*is ignored")
+            model = cls.load(out / ckpt, env=venv, device="cpu", **{
+                k: v for k, v in kwargs.items() if k in ("learning_rate",)})
         old = model.__dict__.get("pneugym_layout")
         if old is not None and old != layout:
             from agents.learned import check_layout
@@ -417,9 +454,11 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
         venv.seed(seed)
     model.set_logger(logger)
     model.pneugym_layout = layout
+    model.pneugym_decision = {"rule": "argmax"}
     done0 = int(model.num_timesteps)
     remaining = max(0, total - done0)
-    after = P["AfterEval"](out, refs, record, layout)
+    after = P["AfterEval"](out, refs, record, layout, conds, env_cfg, int(val["seed"]),
+                           cfg.get("decision", {"rule": "argmax", "grid": [0.0]}))
     if resume and run.get("validation"):
         after.history = list(run["validation"])
         after.best = max(r["return"] for r in after.history)
@@ -438,11 +477,8 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     wall = time.perf_counter() - t0
     if not after.history or after.history[-1]["timesteps"] != model.num_timesteps:
         # validate the final model too, so that the best model is chosen among all
-        from stable_baselines3.common.evaluation import evaluate_policy
-        rets, _ = evaluate_policy(model, eval_env, n_eval_episodes=len(conds), deterministic=True,
-                                  return_episode_rewards=True, warn=False)
         after.init_callback(model)
-        after.report(float(np.mean(rets)))
+        after.report(None)
     atomic_save_sb3(model, out / "model.zip")
     ck.init_callback(model)
     ck.save()
@@ -451,7 +487,7 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     return {"model": "best_model.zip", "final_model": "model.zip", "timesteps_done":
             int(model.num_timesteps), "train_wall_s": prev_wall + wall,
             "steps_per_s": (model.num_timesteps - done0) / wall if wall > 0 else None,
-            "best": best, "observation_layout": layout,
+            "best": best, "decision": best["decision"], "observation_layout": layout,
             "env_config": {**env_cfg, "num_envs": num_envs}}
 
 

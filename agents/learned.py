@@ -145,14 +145,30 @@ class LearnedPolicy(Policy):
         raise NotImplementedError
 
 
+#: How an SB3 model's network becomes a deterministic cut-off decision (see :class:`SB3Policy`).
+DECISION_RULES = ("argmax", "quantile", "advantage")
+
+
 class SB3Policy(LearnedPolicy):
     """A saved stable-baselines3 model (PPO, DQN, A2C) behind the common interface, acting
-    deterministically."""
+    deterministically by one of three ``decision`` rules (``{"rule": ..., "value": ...}``):
+
+    - ``argmax`` (default): SB3's deterministic ``predict``;
+    - ``quantile`` (PPO, A2C): cut once the stochastic policy would have cut by now with
+      probability ``value``, i.e. ``1 - prod(1 - p_cut) >= value`` over the episode's steps. A
+      latched cut is a stopping time: this is the ``value``-quantile of the policy's own
+      stopping-time distribution, where ``argmax`` (``p_cut > 0.5`` in one step) may never cut
+      when the policy spreads its hazard over several steps;
+    - ``advantage`` (DQN): cut once ``Q(cut) - Q(keep) >= value``.
+
+    ``value`` may be an array with one entry per observation row (sweeps).
+    """
 
     name = "sb3"
 
     def __init__(self, env_layout: Mapping[str, Any], model, model_layout: Mapping[str, Any] |
-                 None = None, source: str = "the model"):
+                 None = None, source: str = "the model",
+                 decision: Mapping[str, Any] | None = None):
         if model_layout is None:  # an SB3 zip from elsewhere: only the size can be checked
             shape = tuple(model.observation_space.shape)
             if shape != (int(env_layout["size"]),):
@@ -166,10 +182,47 @@ class SB3Policy(LearnedPolicy):
             raise LayoutMismatchError(f"{source}: the network takes {shape}, its recorded layout "
                                       f"has size {self.model_layout['size']}")
         self.model = model
+        self.decision = dict(decision or {"rule": "argmax"})
+        rule = self.decision.get("rule")
+        if rule not in DECISION_RULES:
+            raise ValueError(f"decision rule {rule!r}: choose one of {DECISION_RULES}")
+        if rule == "quantile" and not hasattr(model.policy, "get_distribution"):
+            raise ValueError(f"{source}: the quantile rule needs a stochastic policy (PPO, A2C)")
+        if rule == "advantage" and not hasattr(model, "q_net"):
+            raise ValueError(f"{source}: the advantage rule needs a Q-network (DQN)")
+        self.value = np.asarray(self.decision.get("value", 0.5), dtype=float)
+        names = [f["name"] for f in self.model_layout["features"]]
+        base = (int(self.model_layout["history"]) - 1) * len(names)
+        self._t_idx = base + names.index("time")
+        self._cut_idx = base + names.index("supply_cut")
+        self._log_survival: np.ndarray | None = None
+
+    def _net_input(self, obs: np.ndarray):
+        import torch
+
+        return torch.as_tensor(np.asarray(obs, dtype=np.float32))
 
     def act_model(self, obs: np.ndarray) -> np.ndarray:
-        a, _ = self.model.predict(obs, deterministic=True)
-        return a
+        rule = self.decision["rule"]
+        if rule == "argmax":
+            a, _ = self.model.predict(obs, deterministic=True)
+            return a
+        import torch
+
+        with torch.no_grad():
+            if rule == "advantage":
+                q = self.model.q_net(self._net_input(obs)).numpy()
+                a = (q[:, 1] - q[:, 0]) >= self.value
+            else:
+                dist = self.model.policy.get_distribution(self._net_input(obs))
+                p = dist.distribution.probs[:, 1].numpy().astype(np.float64)
+                b = obs.shape[0]
+                if self._log_survival is None or self._log_survival.shape[0] != b:
+                    self._log_survival = np.zeros(b)
+                self._log_survival[obs[:, self._t_idx] == 0.0] = 0.0  # a new episode
+                self._log_survival += np.log1p(-np.minimum(p, 1.0 - 1e-12))
+                a = 1.0 - np.exp(self._log_survival) >= self.value
+        return (a | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
 
 
 def read_run(path: Path) -> dict[str, Any] | None:

@@ -1,6 +1,7 @@
 """Build a policy by name for an environment, or load a trained one from disk."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,9 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``) or a
     stable-baselines3 ``.zip`` (PPO, DQN or A2C). The model's observation layout (recorded in the
     file, or in its run's ``run.json``) must match the environment's up to the history, else a
-    :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` go to the ESAC rule."""
+    :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` override the ESAC
+    rule's parameters, or (``decision=``) an SB3 model's decision rule (default: the one train.py
+    tuned and saved with the model)."""
     import zipfile
 
     p = Path(path)
@@ -65,13 +68,16 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     errors = []
     for algo in order:
         try:
-            model = algo.load(f, device="cpu")
+            with warnings.catch_warnings():  # a DQN saved with n-step returns says so on load
+                warnings.filterwarnings("ignore", message=".*n_steps=.*is ignored")
+                model = algo.load(f, device="cpu")
         except Exception as exc:  # noqa: BLE001 - try the next algorithm, report all
             errors.append(f"{algo.__name__}: {exc}")
             continue
         model_layout = model.__dict__.get("pneugym_layout") or (run or {}).get(
             "observation_layout")
-        return SB3Policy(layout, model, model_layout, source=f"model {f}")
+        decision = kwargs.get("decision") or model.__dict__.get("pneugym_decision")
+        return SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
     raise ValueError(f"could not load {path} as PPO, DQN or A2C: " + "; ".join(errors))
 
 

@@ -77,3 +77,37 @@ def test_learned_policy_sees_its_own_layout_in_a_history1_env():
     first = pol.seen[0]
     np.testing.assert_array_equal(first[:, :7], first[:, 14:])  # a reset repeats the sample
     np.testing.assert_array_equal(pol.seen[2][:, 7:14], pol.seen[1][:, 14:])  # shifted
+
+
+def test_sb3_decision_rules():
+    """quantile: cut once 1 - prod(1 - p_cut) reaches the value; advantage: Q(cut) - Q(keep)."""
+    import torch
+    from stable_baselines3 import DQN, PPO
+
+    from agents.learned import SB3Policy
+    from pneugym.envs.sb3 import CutOffVecEnv
+
+    venv = CutOffVecEnv(num_envs=2)
+    lay = venv.observation_layout()
+    ppo = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0)
+    with torch.no_grad():
+        ppo.policy.action_net.weight.zero_()
+        ppo.policy.action_net.bias[:] = torch.tensor([0.0, float(np.log(0.1 / 0.9))])  # p = 0.1
+    pol = SB3Policy(lay, ppo, lay, decision={"rule": "quantile", "value": 0.5})
+    obs = np.zeros((1, 7), dtype=np.float32)
+    obs[0, 5] = 0.01
+    acts = [int(pol.act(obs)[0]) for _ in range(8)]
+    # 1 - 0.9^k >= 0.5 first at k = 7
+    assert acts == [0] * 6 + [1] * 2
+    obs[0, 5] = 0.0  # a new episode restarts the count
+    assert int(pol.act(obs)[0]) == 0
+    with pytest.raises(ValueError, match="Q-network"):
+        SB3Policy(lay, ppo, lay, decision={"rule": "advantage", "value": 0.0})
+    dqn = DQN("MlpPolicy", venv, learning_starts=0, buffer_size=100, device="cpu", seed=0)
+    q = dqn.q_net(torch.as_tensor(obs)).detach().numpy()[0]
+    adv = float(q[1] - q[0])
+    for value, want in ((adv - 1e-3, 1), (adv + 1e-3, 0)):
+        p = SB3Policy(lay, dqn, lay, decision={"rule": "advantage", "value": value})
+        assert int(p.act(obs)[0]) == want
+    with pytest.raises(ValueError, match="decision rule"):
+        SB3Policy(lay, dqn, lay, decision={"rule": "vote"})
