@@ -102,12 +102,24 @@ def _template(params: RigParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=4096)
 def conventional_figures(params: RigParams, dip: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                         t_max_s: float = 20.0) -> tuple[float, float]:
+                         t_max_s: float = 20.0, period_s: float = 0.0) -> tuple[float, float]:
     """Conventional stroke time [s] (valve delay included) and wasted energy [J] of ``params``
-    with a supply dip, simulated once and cached. Raises ``ValueError`` if it never arrives."""
+    with a supply dip, simulated once and cached. Raises ``ValueError`` if it never arrives.
+
+    ``period_s > 0`` advances in control periods of that length, as an episode does (the last
+    substep of every period is shortened to land on it), so that a conventional episode's
+    stroke time equals this one to the last bit; ``0``: one call."""
     plant = Plant(params)
     plant.set_supply_dip(*dip)
-    plant.advance(t_max_s, command=1, stop_on_arrival=True)
+    if period_s > 0.0:
+        plant.command(1)
+        n = int(math.ceil(t_max_s / period_s))
+        for _ in range(n):
+            plant.advance(period_s, stop_on_arrival=True)
+            if plant.arrival_time_s is not None:
+                break
+    else:
+        plant.advance(t_max_s, command=1, stop_on_arrival=True)
     if plant.arrival_time_s is None:
         raise ValueError(f"the conventional stroke does not complete within {t_max_s} s for "
                          f"{params.supply_pressure_gauge_pa / 1e5:.3g} bar gauge, "
@@ -198,7 +210,7 @@ class _CutOffCore:
         P, y0, d0 = _template(params)
         self.P[i], self.Y[i], self.D[i] = P, y0, d0
         set_supply_dip(self.P[i], *cond.dip)
-        t_conv, e_conv = conventional_figures(params, cond.dip)
+        t_conv, e_conv = conventional_figures(params, cond.dip, period_s=self.control_period_s)
         K.command(self.D[i], self.P[i], 1.0)
         e = self.E[i]
         e[:] = 0.0
