@@ -240,8 +240,9 @@ class EffectParams:
 
 @dataclass(frozen=True)
 class SolverParams:
-    """Explicit time stepping (SSP-RK3). ``dt_s=None`` picks the substep automatically from the
-    CFL limit of the line and the stiffness of the smallest volume, times ``safety``."""
+    """Time stepping: IMEX Runge-Kutta, SSP-RK3 for everything but the valve and port flows,
+    which are implicit. ``dt_s=None`` picks the substep automatically from the explicit part's
+    stability limits (the line's acoustic CFL limit, the explicit orifices), times ``safety``."""
 
     dt_s: float | None = None
     safety: float = 0.9

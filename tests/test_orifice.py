@@ -191,3 +191,35 @@ def test_flow_parameter_matches_mass_flow_outside_the_linear_zone():
         for r in np.linspace(0.05, 1 - LIN, 12):
             assert flow(2e5, r * 2e5, oc=oc) == pytest.approx(
                 CDA * 2e5 / SQRT_T * O.flow_parameter(r, oc), rel=1e-14)
+
+
+# --- derivatives and the implicit stage solve (the plant's IMEX substep) ---------------------
+@pytest.mark.parametrize("model", [0.0, 1.0])
+@pytest.mark.parametrize("r", [0.2, 0.6, 0.8, 0.9, 0.97, 0.995])
+def test_flow_derivatives_match_finite_differences(model, r):
+    oc = O.orifice_constants(GAMMA, R, model, 0.45, LIN)
+    pu = 4e5
+    pd = r * pu
+    q, d_up, d_dn = O.flow_deriv_fwd(pu, pd, CDA, SQRT_T, oc, 0)
+    assert q == pytest.approx(flow(pu, pd, oc), rel=1e-12)
+    h = 1e-3
+    assert d_up == pytest.approx((flow(pu + h, pd, oc) - flow(pu - h, pd, oc)) / (2 * h), rel=1e-6, abs=1e-16)
+    assert d_dn == pytest.approx((flow(pu, pd + h, oc) - flow(pu, pd - h, oc)) / (2 * h), rel=1e-6, abs=1e-16)
+
+
+@pytest.mark.parametrize("model", [0.0, 1.0])
+@pytest.mark.parametrize("pa,pb", [(3.5e5, 1.0e5), (3.5e5, 3.0e5), (3.0e5, 2.95e5), (1.2e5, 3.4e5),
+                                   (2e5, 2e5)])
+@pytest.mark.parametrize("hg", [1e-6, 1e-4, 1e-3, 1e-1])
+@pytest.mark.parametrize("ka,kb", [(2e10, 3e8), (0.0, 2e10)])
+def test_implicit_flow_solves_its_stage_equation(model, pa, pb, hg, ka, kb):
+    """q = flow(pa - hg ka q, pb + hg kb q), whatever the guess, without crossing the pressures."""
+    oc = O.orifice_constants(GAMMA, R, model, 0.45, LIN)
+    for guess in (0.0, 1.0, -1.0, 1e-3):
+        q = O.implicit_flow(pa, pb, ka, kb, hg, CDA, SQRT_T, SQRT_T, oc, 0, guess)
+        a, b = pa - hg * ka * q, pb + hg * kb * q
+        f = flow(a, b, oc)
+        assert q == pytest.approx(f, rel=1e-6, abs=1e-15)
+        assert (a - b) * (pa - pb) >= -1e-9 * pa  # the pressures keep their order
+        if pa == pb:
+            assert q == 0.0

@@ -5,14 +5,15 @@ whether the episode ends, and pay the reward. No physics here: the plant kernels
 
 Per-episode array ``e`` (float64, length ``NE``), indexed by the ``E_*`` constants:
 """
-import numpy as np
 from numba import njit, prange
 
 from ..physics.layout import (
-    D_MODE, D_STICKS, D_T, D_T_ARRIVE, MODE_START, MODE_STUCK, NR, P_FS, P_NCELLS, P_PA, P_PS,
+    D_MODE, D_STICKS, D_T, D_T_ARRIVE, MODE_START, MODE_STUCK, P_FS, P_NCELLS, P_PA, P_PS,
     STATUS_OK, Y_SD, Y_SE, Y_X,
 )
-from ..physics.system import advance, chamber_pressures, command, energy_wasted, max_drive_force, valve_closed
+from ..physics.system import (
+    chamber_pressures, command_advance, energy_wasted, max_drive_force, valve_closed,
+)
 
 E_CUT = 0        # 1 while the supply is cut (latched unless reversible)
 E_REV = 1        # 1 = the agent may re-open the supply
@@ -66,9 +67,11 @@ def objective(y, P, d, e, done, completed):
 
 
 @njit(cache=True)
-def step_one(y, P, d, e, action):
+def step_one(y, P, d, e, action, w):
     """One control period of one episode. Returns ``(reward, plant status)``; ``e[E_DONE]``
-    tells whether (and how) it ended. A finished episode is left untouched (reward 0)."""
+    tells whether (and how) it ended. A finished episode is left untouched (reward 0).
+    ``w``: the plant's work array (:func:`pneugym.physics.system.work_size`), so that a step
+    allocates nothing."""
     if e[E_DONE] != 0.0:
         return 0.0, STATUS_OK
     t0 = d[D_T]
@@ -76,8 +79,7 @@ def step_one(y, P, d, e, action):
     if cut and e[E_T_CUT] < 0.0:
         e[E_T_CUT] = t0
     e[E_CUT] = 1.0 if cut else 0.0
-    command(d, P, 0.0 if cut else 1.0)
-    st, _ = advance(y, P, d, t0 + e[E_PERIOD], np.empty((0, NR)), 0.0, False)
+    st = command_advance(y, P, d, w, 0.0 if cut else 1.0, e[E_PERIOD], False)
     if st != STATUS_OK:
         return 0.0, st
 
@@ -129,10 +131,11 @@ def truncate(y, P, d, e):
 
 
 @njit(cache=True, parallel=True)
-def step_batch(Y, Ps, Ds, Es, actions, rewards, status):
-    """:func:`step_one` for every episode of a batch, in parallel (numba ``prange``)."""
+def step_batch(Y, Ps, Ds, Es, actions, rewards, status, W):
+    """:func:`step_one` for every episode of a batch, in parallel (numba ``prange``); ``W``
+    (B, work size): the plants' work arrays."""
     for i in prange(Y.shape[0]):
-        rewards[i], status[i] = step_one(Y[i], Ps[i], Ds[i], Es[i], actions[i])
+        rewards[i], status[i] = step_one(Y[i], Ps[i], Ds[i], Es[i], actions[i], W[i])
 
 
 # --- observation --------------------------------------------------------------------------------

@@ -68,10 +68,23 @@ def fd_rhs(y, q_in, q_out, p, RT, A, dx, d, mu, cq, dy, n):
     compressing cells (``Δu < 0`` across the cell); O(dx²) where the flow is smooth, it keeps
     the scheme stable through the shocks of a sudden closure.
     """
-    for i in range(n):  # continuity
+    fd_continuity(y, q_in, q_out, dy, n)
+    fd_momentum(y, q_in, q_out, p, RT, A, dx, d, mu, cq, dy, n)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def fd_continuity(y, q_in, q_out, dy, n):
+    """Continuity part of :func:`fd_rhs`: writes ``dy[0..n-1]``."""
+    for i in range(n):
         qa = q_in if i == 0 else y[n + i - 1]
         qb = q_out if i == n - 1 else y[n + i]
         dy[i] = qa - qb
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def fd_momentum(y, q_in, q_out, p, RT, A, dx, d, mu, cq, dy, n):
+    """Momentum part of :func:`fd_rhs`: writes ``dy[n..2n-2]``; the boundary flows ``q_in``,
+    ``q_out`` enter the cell-centre fluxes and stresses of the end cells."""
     if n > 1:  # (no early return: it would keep numba's reference counting in the hot loop)
         inv_a = 1.0 / A
         inv_dx = 1.0 / dx

@@ -21,9 +21,18 @@ from .layout import (
     R_SE_P, R_T, R_TD, R_TE, R_V, R_X, STATUS_NONFINITE, STATUS_NONPOSITIVE, STATUS_OK, Y_MD,
     Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
-from .line import fd_rhs, lumped_rhs
-from .orifice import flow_at
+from .line import fd_continuity, fd_momentum, lumped_rhs
+from .orifice import flow_at, implicit_flow
 
+
+#: Implicit tableau of the IMEX substep (the explicit one is SSP-RK3: c = 0, 1, 1/2; weights
+#: 1/6, 1/6, 2/3 for both). The same abscissae as the explicit part: a flow that passes through
+#: the last line cell (explicit in, implicit out) leaves its mass unchanged at every stage
+#: (with IMEX-SSP3(3,3,2), whose implicit abscissae differ, the errors were several times
+#: larger). First stage explicit; order 2; A-stable and L-stable (R(-inf) = 0): the member
+#: a33 = 1/4 of the one-parameter family of such tableaus with these c and b. See ``stage_rhs``.
+IMEX_A21, IMEX_A22 = 2.0 / 3.0, 1.0 / 3.0
+IMEX_A31, IMEX_A32, IMEX_A33 = 7.0 / 48.0, 5.0 / 48.0, 0.25
 
 #: Karnopp velocity dead band [m/s]: a decelerating piston slower than this sticks if |F| <= Fs.
 V_STICK = 1e-5
@@ -138,6 +147,37 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
     """:func:`rhs` with the main-valve and exhaust-path openings ``s``, ``se`` given."""
     n = int(P[P_NCELLS])
     b = 2 * n - 1
+    q_imp, q_port, q_in = stage_rhs(tau, s, se, y, P, mode, dy, p, 0.0, 0.0, 0.0)
+    dy[0] += q_imp
+    dy[n - 1] -= q_port
+    dy[b + Y_MD] += q_port
+    dy[b + Y_MIN] += q_imp
+    return q_in
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
+    """One stage of the IMEX substep: the implicit part, then the explicit right-hand side.
+
+    The implicit part is the port flow from the last line cell into the driving chamber and the
+    supply flow through the main valve into line cell 0: the stiffest exchanges (small line cells
+    behind orifices; the port's limited the explicit substep to 274 µs, the valve's to 606 µs).
+    With ``hg = h a_ii > 0`` each solves its stage equation ``q = flow(state + hg q)`` with
+    :func:`pneugym.physics.orifice.implicit_flow` (exact in the orifices' linear zone, Newton
+    from the guesses ``qv0``, ``qp0`` outside it), port first, and ``y`` is updated in place to
+    the stage state (cell 0, cell n-1 and the driving-chamber mass). With one line cell the
+    valve flow stays explicit (it is then evaluated at the stage state). ``hg = 0``: no implicit
+    step, the flows at ``y``.
+
+    Then ``dy`` receives every other term at the stage state: the line without the implicit flows
+    in the continuity of its end cells, the chambers without the port flow in the driving-chamber
+    mass, the piston; the implicit flows enter the line momentum (end-cell fluxes) and the
+    chamber energy equation. ``dy[b + Y_MIN]`` holds only an explicit valve flow.
+    Returns ``(q_valve_implicit, q_port, q_supply)`` [kg/s]: the implicit valve flow (0 when it is
+    explicit), the port flow, the supply flow.
+    """
+    n = int(P[P_NCELLS])
+    b = 2 * n - 1
     R, gam, T, pa = P[P_R], P[P_GAMMA], P[P_T], P[P_PA]
     sT = P[P_SQRT_T]
     RT = R * T
@@ -150,28 +190,58 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
     sTe = sT if Te == T else math.sqrt(Te)
     stroke = P[P_STROKE]
 
-    q_in = 0.0
-    if s > 0.0:
-        q_in = flow_at(supply_pressure(P, tau), p[0], s * P[P_CDA_VALVE], sT, sT, P, P_OC)
     fd = cushion_factor(x, P[P_CUSH_LEN], P[P_CUSH_FD], P[P_CUSH_RAMP])
     fe = cushion_factor(stroke - x, P[P_CUSH_LEN], P[P_CUSH_FE], P[P_CUSH_RAMP])
-    q_port = flow_at(p[n - 1], pd, fd * P[P_CDA_PORT], sT, sTd, P, P_OC)
+    cda_v = s * P[P_CDA_VALVE]
+    cda_p = fd * P[P_CDA_PORT]
+    q_imp = 0.0  # the implicit valve flow (0 when the valve flow is explicit)
+    if hg > 0.0:
+        # port: implicit (line cell n-1 <-> driving chamber)
+        kc = RT / P[NP + n - 1]
+        kd = R * Td / vd
+        q_port = implicit_flow(p[n - 1], pd, kc, kd, hg, cda_p, sT, sTd, P, P_OC, qp0)
+        y[n - 1] -= hg * q_port
+        y[b + Y_MD] += hg * q_port
+        p[n - 1] = y[n - 1] * RT / P[NP + n - 1]
+        pd = y[b + Y_MD] * R * Td / vd
+        # valve: implicit unless the one cell also takes the port flow (n = 1)
+        q_in = 0.0
+        if s > 0.0:
+            if n > 1:
+                q_in = implicit_flow(supply_pressure(P, tau), p[0], 0.0, RT / P[NP], hg, cda_v,
+                                     sT, sT, P, P_OC, qv0)
+                y[0] += hg * q_in
+                p[0] = y[0] * RT / P[NP]
+                q_imp = q_in
+            else:
+                q_in = flow_at(supply_pressure(P, tau), p[0], cda_v, sT, sT, P, P_OC)
+    else:
+        q_port = flow_at(p[n - 1], pd, cda_p, sT, sTd, P, P_OC)
+        q_in = 0.0
+        if s > 0.0:
+            q_in = flow_at(supply_pressure(P, tau), p[0], cda_v, sT, sT, P, P_OC)
+            if n > 1:
+                q_imp = q_in
+
+    # explicit part
     q_ex = 0.0
     if se > 0.0:
         q_ex = flow_at(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, P, P_OC)
     q_ld = flow_at(pd, pa, P[P_CDA_LEAK_D], sTd, sT, P, P_OC)
     q_lp = flow_at(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, P, P_OC)
 
-    # line
+    # line (the valve and port flows are left out of the end cells' continuity)
     if P[P_LINE_MODEL] == 0.0:
-        fd_rhs(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV], dy, n)
+        fd_continuity(y, 0.0, 0.0, dy, n)
+        fd_momentum(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV],
+                    dy, n)
     else:
-        lumped_rhs(p, q_in, q_port, P[P_CDA_LINE], sT, P, P_OC, dy, n)
+        lumped_rhs(p, 0.0, 0.0, P[P_CDA_LINE], sT, P, P_OC, dy, n)
         for j in range(n, b):
             dy[j] = 0.0
 
     # chambers
-    dy[b + Y_MD] = q_port - q_ld - q_lp
+    dy[b + Y_MD] = -q_ld - q_lp
     dy[b + Y_ME] = q_lp - q_ex
     tau_th = P[P_TAU_TH]
     if tau_th > 0.0:
@@ -198,16 +268,19 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
         dy[b + Y_V] = 0.0
     dy[b + Y_SD] = 0.0  # sensors are filtered exactly at the end of each substep
     dy[b + Y_SE] = 0.0
-    dy[b + Y_MIN] = q_in
+    dy[b + Y_MIN] = 0.0
     dy[b + Y_MOUT] = q_ex + q_ld
-    return q_in
+    if n == 1:  # explicit valve flow
+        dy[0] += q_in
+        dy[b + Y_MIN] = q_in
+    return q_imp, q_port, q_in
 
 
 # --------------------------------------------------------------------------------------------
 # one substep
 # --------------------------------------------------------------------------------------------
-# The hot loop. ``_nrt=False``: the substep allocates nothing, and without numba's runtime the
-# array arguments of the inlined kernels are not reference-counted (atomic increments and
+# The hot loop: one IMEX step (see ``substep``). ``_nrt=False``: the substep allocates
+# nothing, and without numba's runtime the array arguments of the inlined kernels are not reference-counted (atomic increments and
 # decrements around every branch cost about a third of a substep). ``error_model="numpy"``
 # everywhere: a division by zero gives inf/NaN, which the state check below reports, instead
 # of a Python exception path in every division. ``fastmath={"contract"}`` only (fused
@@ -216,8 +289,16 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
 # 1e-15 to 1e-12 relative).
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
 def substep(y, P, d, h, k, y1, y2, p):
-    """Advance by ``h`` [s] with SSP-RK3 (Shu-Osher), then apply the events: valve commands
-    coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code."""
+    """Advance by ``h`` [s] with a 3-stage IMEX Runge-Kutta step, then apply the events: valve
+    commands coming due, stick/slip and end stops (Karnopp), sensor lag. Returns a status code.
+
+    Explicit part: SSP-RK3 (Butcher form): everything but the valve and port flows.
+    Implicit part (:func:`stage_rhs`): those two flows, with the diagonally implicit tableau
+    ``IMEX_A*`` (first stage explicit) on the same abscissae 0, 1, 1/2 and the same weights
+    1/6, 1/6, 2/3. Order 2 (3 for the explicit part alone); mass moves between cells by the same
+    flows on both sides, so it is conserved to round-off. ``k``, ``y1``, ``y2``: work arrays of the
+    state's length (``y1`` receives the first two stages' explicit rates summed, ``k`` the
+    second's and then the third's, ``y2`` the stage state)."""
     t = d[D_T]
     ny = y.shape[0]
     n = int(P[P_NCELLS])
@@ -225,19 +306,41 @@ def substep(y, P, d, h, k, y1, y2, p):
     mode = int(d[D_MODE])
     v_old = y[b + Y_V]
     x_old = y[b + Y_X]
+    z = y2
 
+    # stage 1 (c = 0): the state itself
     s, se = valve_opening(d, P, t)
-    rhs_valve(t, s, se, y, P, mode, k, p)
+    qv1, qp1, _ = stage_rhs(t, s, se, y, P, mode, y1, p, 0.0, 0.0, 0.0)
+    # stage 2 (c = 1): y + h k1 + h (a21 q1 + a22 q2)
     for i in range(ny):
-        y1[i] = y[i] + h * k[i]
+        z[i] = y[i] + h * y1[i]
+    c = h * IMEX_A21
+    z[0] += c * qv1
+    z[n - 1] -= c * qp1
+    z[b + Y_MD] += c * qp1
     s, se = valve_opening(d, P, t + h)
-    rhs_valve(t + h, s, se, y1, P, mode, k, p)
+    qv2, qp2, _ = stage_rhs(t + h, s, se, z, P, mode, k, p, h * IMEX_A22, qv1, qp1)
+    # stage 3 (c = 1/2): y + h/4 (k1 + k2) + h (a31 q1 + a32 q2 + a33 q3)
     for i in range(ny):
-        y2[i] = 0.75 * y[i] + 0.25 * (y1[i] + h * k[i])
+        y1[i] += k[i]
+        z[i] = y[i] + 0.25 * h * y1[i]
+    c = h * IMEX_A31
+    c2 = h * IMEX_A32
+    z[0] += c * qv1 + c2 * qv2
+    z[n - 1] -= c * qp1 + c2 * qp2
+    z[b + Y_MD] += c * qp1 + c2 * qp2
     s, se = valve_opening(d, P, t + 0.5 * h)
-    rhs_valve(t + 0.5 * h, s, se, y2, P, mode, k, p)
+    qv3, qp3, _ = stage_rhs(t + 0.5 * h, s, se, z, P, mode, k, p, h * IMEX_A33, qv2, qp2)
+    # weights 1/6, 1/6, 2/3 for both parts
+    h6 = h / 6.0
     for i in range(ny):
-        y[i] = (y[i] + 2.0 * (y2[i] + h * k[i])) / 3.0
+        y[i] += h6 * (y1[i] + 4.0 * k[i])
+    qv = h6 * (qv1 + qv2 + 4.0 * qv3)
+    qp = h6 * (qp1 + qp2 + 4.0 * qp3)
+    y[0] += qv
+    y[b + Y_MIN] += qv
+    y[n - 1] -= qp
+    y[b + Y_MD] += qp
 
     # valve: advance the ramp, record a completed closing, pop due commands
     t_new = t + h
