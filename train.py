@@ -531,7 +531,8 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     net, hist = esac.fit(data["obs"], y, mask, hidden=tuple(fit["hidden"]),
                          epochs=int(fit["epochs"]), batch_size=int(fit["batch_size"]),
                          lr=float(fit["lr"]), weight_decay=float(fit.get("weight_decay", 0.0)),
-                         seed=seed, patience=int(fit.get("patience", 15)), progress=progress)
+                         seed=seed, patience=int(fit.get("patience", 15)),
+                         time_loss=fit.get("time_loss", "mse"), progress=progress)
     pred = esac.ESACPredictor(net, layout)
     acc = esac.accuracy(pred, held)
     atomic_write_json(out / "accuracy.json", acc)
@@ -613,11 +614,15 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
             print(f"--resume: using the run's seed {prev['seed']} (not {seed})", flush=True)
             seed = int(prev["seed"])
     _threads(cfg)
+    from agents.esac import source_hash
+    from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: F401  (load the plant's code now)
+    source_hash()  # ... and key caches by these sources, even if the files change meanwhile
     out.mkdir(parents=True, exist_ok=True)
     run: dict[str, Any] = dict(prev) if (resume and prev) else {}
     run.update({"algo": algo, "seed": seed, "preset": cfg["preset"], "budget": budget,
                 "config": cfg, "command": [Path(sys.argv[0]).name, *sys.argv[1:]],
-                "provenance": provenance(), "training_seeds_below": MAX_TRAINING_SEED})
+                "provenance": provenance(), "pneugym_sources": source_hash(),
+                "training_seeds_below": MAX_TRAINING_SEED})
     run.setdefault("started_utc", run["provenance"]["created_utc"])
 
     def record(**kw: Any) -> None:
@@ -658,6 +663,8 @@ def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path
             print(f"== no trained {name} under {d}: training it ({budget} budget)", flush=True)
             train(name, d, seed=seed, budget=budget, progress=progress)
             p = model_path(d)
+            if p is None:
+                raise RuntimeError(f"training {name} into {d} did not leave a finished model")
         paths[name] = p
     return paths
 

@@ -29,6 +29,7 @@ margin: the accepted predicted risk of an incomplete stroke. train.py tunes ``ma
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -54,9 +55,11 @@ GENERATOR_VERSION = 2  # bump when generate_rollouts changes what it records
 # ------------------------------------------------------------------------------------------------
 # data
 # ------------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=1)
 def source_hash() -> str:
     """SHA-256 (first 16 hex digits) of the ``pneugym`` package's Python sources: a changed plant
-    makes cached rollouts stale."""
+    makes cached rollouts stale. Computed once per process (train.py calls it at the start, so
+    that sources edited while it runs do not key results of the code it has loaded)."""
     import pneugym
 
     root = Path(pneugym.__file__).parent
@@ -225,13 +228,17 @@ def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128)):
 
 def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = (128, 128, 128),
         epochs: int = 60, batch_size: int = 256, lr: float = 2e-3, weight_decay: float = 1e-5,
-        val_fraction: float = 0.1, seed: int = 0, patience: int = 15, progress: bool = True
-        ) -> tuple[Any, dict[str, Any]]:
+        val_fraction: float = 0.1, seed: int = 0, patience: int = 15, time_loss: str = "mse",
+        progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Train the predictor on ``x`` (B, n_in), targets ``y`` and ``mask`` of :func:`targets`:
     binary cross-entropy on the class heads, mean squared error on the standardised regression
     heads (masked), Adam with a cosine learning rate; keeps the weights of the best validation
-    loss (rows split at random: each row is its own episode and conditions). Returns the network
+    loss (rows split at random: each row is its own episode and conditions). ``time_loss="l1"``
+    fits the time ratio's conditional median instead of its mean: sharper at the knee where a
+    later cut stops lengthening the stroke (the mean smooths it into a bias). Returns the network
     and the loss history."""
+    if time_loss not in ("mse", "l1"):
+        raise ValueError(f"time_loss = {time_loss!r}: choose 'mse' or 'l1'")
     from tqdm import tqdm
 
     torch = _torch()
@@ -264,8 +271,12 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
         bce = torch.nn.functional.binary_cross_entropy_with_logits(out[:, :nc], yt[rows, :nc])
         z = (yt[rows, nc:] - net.out_mean) / net.out_std
         m = mt[rows, nc:]
-        mse = (((out[:, nc:] - z) ** 2) * m).sum() / m.sum().clamp_min(1.0)
-        return bce + mse
+        err = (out[:, nc:] - z) ** 2
+        if time_loss == "l1":
+            k = REG_HEADS.index("log_time_ratio")
+            err = torch.cat([err[:, :k], (out[:, nc + k:nc + k + 1] - z[:, k:k + 1]).abs(),
+                             err[:, k + 1:]], dim=1)
+        return bce + (err * m).sum() / m.sum().clamp_min(1.0)
 
     hist: dict[str, Any] = {"train": [], "val": []}
     best, best_state, stale = math.inf, None, 0

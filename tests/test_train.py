@@ -103,3 +103,16 @@ def test_configs_and_refusals(tmp_path):
         train.train("sac", tmp_path / "x", progress=False)
     with pytest.raises(SystemExit):
         train.main(["--algo", "ppo", "--seed", "2000000", "--out", str(tmp_path / "y")])
+
+
+def test_ensure_trained_reuses_finished_runs(runs, monkeypatch):
+    """evaluate.py's train-on-demand: finished runs are used as they are, missing ones trained."""
+    calls = []
+    monkeypatch.setattr(train, "train", lambda name, d, **kw: calls.append((name, kw)))
+    root = runs["ppo"].parent
+    paths = train.ensure_trained(["ppo", "esac"], root, budget="quick")
+    assert calls == []
+    assert paths["ppo"].name == "best_model.zip" and paths["esac"].name == "model.pt"
+    with pytest.raises(RuntimeError, match="did not leave a finished model"):
+        train.ensure_trained(["ppo"], root / "elsewhere", budget="quick")
+    assert calls and calls[0][0] == "ppo" and calls[0][1]["budget"] == "quick"
