@@ -1,6 +1,6 @@
 """Benchmark cut-off policies on the pneugym suites and write results.json, results.csv and plots.
 
-    python evaluate.py                                   # baselines, nominal + robustness suites
+    python evaluate.py       # baselines + trained ESAC, PPO, DQN (trained on demand), both suites
     python evaluate.py --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
         --suite robustness --episodes 3 --seed 1000000 --out results
 
@@ -36,7 +36,8 @@ from pneugym.envs import Conditions, ConditionSpace
 from pneugym.envs.cutoff import CutOffVectorEnv
 from pneugym.provenance import provenance
 
-DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "oracle"]
+DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "esac", "ppo", "dqn", "oracle"]
+LEARNED = ("esac", "ppo", "dqn")  # a bare name: the model under --runs, trained if missing
 NOISE = {"position_noise_m": 3e-5, "pressure_noise_pa": 400.0}
 LOADS_KG = (5.0, 10.0, 15.0, 20.0, 30.0)
 SUPPLIES_BAR = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
@@ -153,13 +154,25 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     return results
 
 
+def resolve_learned(policies: Sequence[str], runs: str, budget: str) -> list[str]:
+    """Bare names of learned policies become ``NAME=PATH`` of their model under ``runs``,
+    trained first (train.py's ``budget``) where none is there yet."""
+    names = [p for p in policies if p in LEARNED]
+    if not names:
+        return list(policies)
+    import train
+
+    paths = train.ensure_trained(names, runs, budget)
+    return [f"{p}={paths[p]}" if p in paths else p for p in policies]
+
+
 def _policy(spec: str, env, env_config: dict) -> tuple[str, Policy]:
     if "=" in spec:
         name, path = spec.split("=", 1)
         return name, load_policy(path, env)
     if spec not in BASELINES:
-        raise SystemExit(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, "
-                         f"saved models are given as NAME=PATH")
+        raise SystemExit(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, learned "
+                         f"ones {list(LEARNED)}, saved models are given as NAME=PATH")
     return spec, make_policy(spec, env)
 
 
@@ -300,7 +313,11 @@ def plot_examples(results: dict[str, Any], out: Path) -> None:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--policies", nargs="+", default=DEFAULT_POLICIES,
-                    help="baseline names and/or NAME=PATH of saved models")
+                    help="baseline names, learned ones (esac, ppo, dqn: runs/<name>, trained "
+                         "on demand) and/or NAME=PATH of saved models")
+    ap.add_argument("--runs", default="runs", help="where learned policies are (and are trained)")
+    ap.add_argument("--budget", default="quick",
+                    help="train.py budget for learned policies trained on demand")
     ap.add_argument("--suite", default="all", choices=["nominal", "robustness", "all"])
     ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
     ap.add_argument("--seed", type=int, default=EVAL_SEED)
@@ -309,7 +326,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     if args.episodes < 1:
         ap.error("--episodes must be >= 1")
     suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
-    results = evaluate(args.policies, suites, args.episodes, args.seed)
+    policies = resolve_learned(args.policies, args.runs, args.budget)
+    results = evaluate(policies, suites, args.episodes, args.seed)
     print_table(results)
     write_outputs(results, Path(args.out))
     print(f"\nwrote {args.out}/results.json, results.csv and plots")

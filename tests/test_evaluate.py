@@ -16,7 +16,8 @@ KEYS = {"episodes", "saving_mean", "time_increase_mean", "stall_rate", "stick_sl
 @pytest.fixture(scope="module")
 def nominal(tmp_path_factory):
     out = tmp_path_factory.mktemp("eval")
-    res = ev.main(["--suite", "nominal", "--episodes", "1", "--out", str(out)])
+    res = ev.main(["--policies", "conventional", "endstroke", "gaslaw", "oracle", "--suite",
+                   "nominal", "--episodes", "1", "--out", str(out)])
     return res, out
 
 
@@ -82,6 +83,23 @@ def test_per_condition_fractions(nominal):
     for v in pc.values():
         assert v["episodes"] == 1 and (v["oracle_fraction"] is None
                                        or math.isfinite(v["oracle_fraction"]))
+
+
+def test_learned_names_resolve_to_trained_models(tmp_path, monkeypatch):
+    import train
+
+    seen = {}
+
+    def fake(names, runs, budget):
+        seen.update(names=list(names), runs=runs, budget=budget)
+        return {n: Path(runs) / n / "model.zip" for n in names}
+
+    monkeypatch.setattr(train, "ensure_trained", fake)
+    out = ev.resolve_learned(["conventional", "ppo", "esac", "x=m.zip"], str(tmp_path), "quick")
+    assert out == ["conventional", f"ppo={tmp_path / 'ppo' / 'model.zip'}",
+                   f"esac={tmp_path / 'esac' / 'model.zip'}", "x=m.zip"]
+    assert seen == {"names": ["ppo", "esac"], "runs": str(tmp_path), "budget": "quick"}
+    assert ev.resolve_learned(["gaslaw"], str(tmp_path), "quick") == ["gaslaw"]
 
 
 def test_unknown_policy_and_bad_path_are_refused(tmp_path):
