@@ -528,15 +528,6 @@ class PlantBatch:
             self.Y[i], self.D[i] = y, d
             self.status[i] = 0
 
-    def set_params(self, index: int, params: RigParams) -> None:
-        """Replace plant ``index`` by a new rig (same ``line.n_cells``) and reset it."""
-        if params.line.n_cells != self.plants[0].n_cells:
-            raise ValueError(f"all plants of a batch need the same line.n_cells "
-                             f"({self.plants[0].n_cells}); got {params.line.n_cells}")
-        self.plants[index] = Plant(params)
-        self.P[index] = self.plants[index].P
-        self.reset(index)
-
     def set_supply_dip(self, index: int, start_s: float = 0.0, duration_s: float = 0.0,
                        depth: float = 0.0) -> None:
         """Supply-pressure dip of plant ``index`` (see :meth:`Plant.set_supply_dip`)."""

@@ -83,11 +83,11 @@ def test_space_sample_is_seeded_and_fixed_space_is_constant():
     assert space.sample(rng) != space.sample(rng)
     c = Conditions(load_mass_kg=12.0, dip_start_s=0.2, dip_duration_s=0.1, dip_depth=0.2)
     sp = fixed(c)
-    assert sp.is_fixed
     rng = np.random.default_rng(0)
     assert all(sp.sample(rng) == c for _ in range(5))
-    assert not PRESETS["randomized"].is_fixed
-    assert PRESETS["thesis-1.5bar"].is_fixed
+    rng = np.random.default_rng(1)
+    assert len({PRESETS["thesis-1.5bar"].sample(rng) for _ in range(5)}) == 1
+    assert len({PRESETS["randomized"].sample(rng) for _ in range(5)}) == 5
 
 
 def test_randomized_preset_stays_in_the_issue_ranges():

@@ -131,13 +131,6 @@ class ConditionSpace:
                              f"known: {sorted(names)}")
         return dataclasses.replace(self, **changes)
 
-    @property
-    def is_fixed(self) -> bool:
-        """True if every draw gives the same motion (no range, no random dip)."""
-        ranged = [getattr(self, f.name) for f in fields(self)
-                  if f.name not in ("dip_probability", "position_noise_m", "pressure_noise_pa")]
-        return all(lo == hi for lo, hi in ranged) and self.dip_probability in (0.0, 1.0)
-
     def sample(self, rng: np.random.Generator) -> Conditions:
         """Draw one :class:`Conditions` (a fixed number of draws, so streams stay aligned)."""
         u = rng.random(10)
