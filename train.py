@@ -526,14 +526,17 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
                          progress=progress)
     t_data = time.perf_counter() - t0
     stroke = float(layout["features"][0]["scale"])
-    y, mask = esac.targets(data, stroke)
     fit = cfg["fit"]
-    net, hist = esac.fit(data["obs"], y, mask, hidden=tuple(fit["hidden"]),
+    delay_input = bool(fit.get("delay_input", False))
+    x, y, mask, episode = esac.samples(data, stroke, delay_input)
+    lookahead_s = [float(d) for d in data["lag_s"] if d > 0] if delay_input else []
+    net, hist = esac.fit(x, y, mask, hidden=tuple(fit["hidden"]),
                          epochs=int(fit["epochs"]), batch_size=int(fit["batch_size"]),
                          lr=float(fit["lr"]), weight_decay=float(fit.get("weight_decay", 0.0)),
                          seed=seed, patience=int(fit.get("patience", 15)),
-                         time_loss=fit.get("time_loss", "mse"), progress=progress)
-    pred = esac.ESACPredictor(net, layout)
+                         time_loss=fit.get("time_loss", "mse"), groups=episode,
+                         progress=progress)
+    pred = esac.ESACPredictor(net, layout, delay_input, lookahead_s)
     acc = esac.accuracy(pred, held)
     atomic_write_json(out / "accuracy.json", acc)
     esac.plot_accuracy(pred, held, out / "accuracy.png",
@@ -549,19 +552,20 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     sweep = esac.sweep_rule(pred, conds, grid, seed=int(val["seed"]))
     refs = validation_references(conds, {**env_cfg, "preset": cfg["preset"]}, int(val["seed"]),
                                  cache)
-    max_stall = float(cfg.get("max_stall_rate", 0.0))
-    ok = [r for r in sweep if r["stall_rate"] <= max_stall] or sweep
-    best = max(ok, key=lambda r: r["return_mean"])
+    best = esac.choose_rule(sweep, float(cfg.get("max_stall_rate", 0.0)),
+                            float(cfg.get("prefer_saving_within", 0.0)))
     rule = {**esac.RULE_DEFAULTS, **{k: best[k] for k in keys}}
     for r in sweep:
         r["oracle_fraction"] = oracle_fraction(r["return_mean"], refs)
     atomic_write_json(out / "rule_sweep.json", {"grid": sweep, "chosen": best,
                                                 "references": refs})
     t_sweep = time.perf_counter() - t1
-    meta = {"n_in": int(data["obs"].shape[1]), "hidden": list(fit["hidden"]), "layout": layout,
+    meta = {"n_in": int(x.shape[1]), "hidden": list(fit["hidden"]), "layout": layout,
+            "delay_input": delay_input, "lookahead_s": lookahead_s,
             "rule": rule, "accuracy": acc, "fit": {k: v for k, v in hist.items()
                                                     if k not in ("train", "val")},
-            "data": {"train_rollouts": int(data["obs"].shape[0]), "seed": seed,
+            "data": {"train_rollouts": int(data["obs"].shape[0]), "samples": int(x.shape[0]),
+                     "seed": seed,
                      "test_rollouts": int(held["obs"].shape[0]), "test_seed": int(test["seed"]),
                      "preset": cfg["preset"], "pneugym_sources": esac.source_hash()},
             "provenance": provenance()}

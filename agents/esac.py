@@ -1,11 +1,13 @@
 """ESAC, the Energy Saving Actuation Control the thesis proposes in 6.8 but never builds: a neural
 network that, from the current sensor history, predicts what would happen if the supply were cut
-**now**, and a controller that cuts at the first instant the prediction says the stroke completes
-with a safety margin and within the time demand.
+**now** (or after a short delay), and a controller that cuts at the first instant the prediction
+says the stroke completes with a safety margin and within the time demand, and that waiting
+longer no longer pays.
 
 **Predictor** (:class:`ESACNet`, :class:`ESACPredictor`). Input: the observation of
 ``pneugym/CutOff-v0`` with ``history=k`` (the last ``k`` samples of position, velocity, both port
-pressures, supply set-point, time, cut flag). Outputs, for a cut at this instant:
+pressures, supply set-point, time, cut flag) and, for a model with ``delay_input``, the delay
+``Δ`` [s] before the cut. Outputs, for a cut at ``now + Δ``:
 
 - ``p_complete``: probability that the piston still reaches the end of stroke;
 - ``final_position_m``: where it ends (the stroke length if it completes);
@@ -17,15 +19,17 @@ pressures, supply set-point, time, cut flag). Outputs, for a cut at this instant
 - ``p_stick``: probability of a stick-slip event on the way.
 
 **Training data** (:func:`generate_rollouts`): episodes of the batched environment over the
-``randomized`` conditions, each cut off at a uniformly random time in ``[0, T_conv + 20 ms]``; the
-observation at the cut and the episode's final figures make one sample. Cached on disk
+``randomized`` conditions, each cut off at a random time; the episode's final figures label the
+observation at the cut (``Δ = 0``) and the observations ``LAGS`` control periods before it (the
+same outcome seen ``Δ`` earlier: before the cut an episode is the uncut one). Cached on disk
 (:func:`rollouts`), keyed by the generator's settings and a hash of the plant's sources.
 
 **Controller** (:class:`ESACPolicy`): cut when ``p_complete >= 1 - margin``, the predicted final
 position is within ``tolerance_m`` of the stroke end, the predicted time increase is at most
-``max_time_increase`` (the time demand) and ``p_stick <= max_stick``. ``margin`` is the safety
-margin: the accepted predicted risk of an incomplete stroke. train.py tunes ``margin``,
-``max_time_increase`` and ``max_stick`` on validation conditions (training seeds).
+``max_time_increase`` (the time demand), ``p_stick <= max_stick`` and, with ``lookahead``, no
+predicted later cut (``Δ`` in the training lags) scores a better objective. ``margin`` is the
+safety margin: the accepted predicted risk of an incomplete stroke. train.py tunes the rule on
+validation conditions (training seeds), :func:`choose_rule`.
 """
 from __future__ import annotations
 
@@ -49,7 +53,9 @@ FORMAT = "pneugym-esac-1"
 CLASS_HEADS = ("complete", "stick")
 REG_HEADS = ("final_position", "log_time_ratio", "conventional_time_s", "wasted_fraction",
              "energy_conventional_j")
-GENERATOR_VERSION = 2  # bump when generate_rollouts changes what it records
+GENERATOR_VERSION = 3  # bump when generate_rollouts changes what it records
+#: control periods before the cut at which an observation is also recorded (Δ = lag x period)
+LAGS = (0, 2, 4, 8, 12, 16, 24, 32, 48, 64)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -73,7 +79,7 @@ def source_hash() -> str:
 def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "randomized",
                       env_config: Mapping[str, Any] | None = None, batch: int = 512,
                       focus: tuple[float, float] = (0.3, 1.0), focus_share: float = 0.8,
-                      progress: bool = True) -> dict[str, np.ndarray]:
+                      lags: Sequence[int] = LAGS, progress: bool = True) -> dict[str, np.ndarray]:
     """``n`` episodes with a random cut-off time each, in batches of the vector environment
     (``autoreset=False``). The cut time is uniform in ``[0, T + window]`` (``T`` the conventional
     stroke time of the episode's conditions), or, for a share ``focus_share`` of the episodes, in
@@ -82,7 +88,9 @@ def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "random
     ``default_rng([seed, j])``.
 
     Returns arrays with one row per episode that was cut before it ended: ``obs`` (the
-    observation at the cut), ``t_cut`` [s], and the final figures ``completed``, ``stalled``,
+    observation at the cut), ``obs_lag`` (B, len(lags), size: the observations ``lags`` control
+    periods before the cut, NaN before the episode began), ``lag_s`` (the lags [s]), ``t_cut``
+    [s], and the final figures ``completed``, ``stalled``,
     ``final_position_m``, ``stroke_time_s`` (NaN if incomplete), ``conventional_time_s``,
     ``energy_wasted_j``, ``energy_conventional_j``, ``saving_ratio``, ``stick_slip_events``,
     ``objective``, plus the conditions' fields."""
@@ -93,7 +101,11 @@ def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "random
 
     cfg = dict(env_config or {})
     cfg["history"] = history
+    lags = tuple(int(k) for k in lags)
+    if not lags or lags[0] != 0 or any(b <= a for a, b in zip(lags, lags[1:])):
+        raise ValueError(f"lags = {lags!r}: increasing control periods starting at 0")
     cols: dict[str, list] = {}
+    period = None
     bar = tqdm(total=n, desc="ESAC rollouts", unit="ep", disable=not progress)
     for start in range(0, n, batch):
         b = min(batch, n - start)
@@ -108,12 +120,13 @@ def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "random
         lo = np.where(u[:, 0] < focus_share, focus[0], 0.0)
         hi = np.where(u[:, 0] < focus_share, focus[1], 1.0)
         t_cut = (lo + (hi - lo) * u[:, 1]) * (t_conv + window)
-        pol = _RecordingCut(env.observation_layout(), t_cut)
+        pol = _RecordingCut(env.observation_layout(), t_cut, lags)
+        period = env.observation_layout()["control_period_s"]
         final = run_first_episodes(env, pol, conds, seed + start)
-        x_cut, t_rec = pol.obs, pol.t_rec
+        x_lag, t_rec = pol.obs, pol.t_rec
         keep = ~np.isnan(t_rec)
         rows = {
-            "obs": x_cut, "t_cut": t_rec,
+            "obs": x_lag[:, 0], "obs_lag": x_lag, "t_cut": t_rec,
             "completed": np.array(final["completed"], dtype=bool),
             "stalled": np.array(final["stalled"], dtype=bool),
             "final_position_m": np.array(final["position_m"], dtype=float),
@@ -132,37 +145,53 @@ def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "random
             cols.setdefault(key, []).append(val[keep])
         bar.update(b)
     bar.close()
-    return {k: np.concatenate(v) for k, v in cols.items()}
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    out["lag_s"] = np.asarray(lags, dtype=float) * float(period)
+    return out
 
 
 class _RecordingCut(TimedCutPolicy):
-    """Cuts at ``t_cut_s`` and records each row's observation at its cut."""
+    """Cuts at ``t_cut_s`` and records each row's observations at its cut and ``lags`` control
+    periods before it (a ring buffer of the recent observations)."""
+
+    def __init__(self, layout: Mapping[str, Any], t_cut_s: np.ndarray, lags: Sequence[int]):
+        super().__init__(layout, t_cut_s)
+        self.lags = np.asarray(lags, dtype=np.int64)
+        self._k = 0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         a = super().act(obs)
-        if not hasattr(self, "obs"):
-            self.obs = np.zeros_like(obs)
+        depth = int(self.lags[-1]) + 1
+        if self._k == 0:
+            self._ring = np.full((depth,) + obs.shape, np.nan, dtype=np.float32)
+            self.obs = np.full((obs.shape[0], self.lags.size, obs.shape[1]), np.nan,
+                               dtype=np.float32)
             self.t_rec = np.full(obs.shape[0], np.nan)
-        new = (a == 1) & np.isnan(self.t_rec)
-        self.obs[new] = obs[new]
+        self._ring[self._k % depth] = obs
+        new = np.flatnonzero((a == 1) & np.isnan(self.t_rec))
+        for j, lag in enumerate(self.lags):
+            if self._k - lag >= 0:
+                self.obs[new, j] = self._ring[(self._k - lag) % depth, new]
         self.t_rec[new] = self.read(obs, "time")[new]
+        self._k += 1
         return a
 
 
 def rollouts(cache_dir: str | Path | None, n: int, seed: int, history: int = 8,
              preset: str = "randomized", env_config: Mapping[str, Any] | None = None,
-             progress: bool = True) -> dict[str, np.ndarray]:
+             lags: Sequence[int] = LAGS, progress: bool = True) -> dict[str, np.ndarray]:
     """:func:`generate_rollouts`, cached in ``cache_dir`` as ``.npz`` (written atomically) under
     a key of the arguments, the generator version and :func:`source_hash`."""
     spec = {"n": n, "seed": seed, "history": history, "preset": preset,
             "env_config": {k: repr(v) for k, v in sorted(dict(env_config or {}).items())},
+            "lags": [int(k) for k in lags],
             "generator": GENERATOR_VERSION, "pneugym_sources": source_hash()}
     key = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
     path = Path(cache_dir) / f"esac-rollouts-{key}.npz" if cache_dir else None
     if path is not None and path.is_file():
         with np.load(path) as z:
             return {k: z[k] for k in z.files if k != "spec"}
-    data = generate_rollouts(n, seed, history, preset, env_config, progress=progress)
+    data = generate_rollouts(n, seed, history, preset, env_config, lags=lags, progress=progress)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + f".{os.getpid()}.tmp.npz")
@@ -187,6 +216,23 @@ def targets(data: Mapping[str, np.ndarray], stroke_m: float) -> tuple[np.ndarray
     mask = np.ones_like(y)
     mask[:, 3] = data["completed"]
     return y.astype(np.float32), mask.astype(np.float32)
+
+
+def samples(data: Mapping[str, np.ndarray], stroke_m: float, delay_input: bool = True
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Network inputs, targets, mask (:func:`targets`) and each sample's episode index. With
+    ``delay_input`` every recorded lag of every episode is one sample, its input the observation
+    ``Δ`` before the cut followed by ``Δ`` [s]; without, the observations at the cut only."""
+    y, mask = targets(data, stroke_m)
+    if not delay_input:
+        return data["obs"].astype(np.float32), y, mask, np.arange(y.shape[0])
+    xl = data["obs_lag"]
+    b, nl, n = xl.shape
+    ok = ~np.isnan(xl[:, :, 0])
+    delay = np.broadcast_to(np.asarray(data["lag_s"], np.float32), (b, nl))
+    x = np.concatenate([xl, delay[:, :, None]], axis=2)[ok]
+    rows = np.broadcast_to(np.arange(b)[:, None], (b, nl))[ok]
+    return x.astype(np.float32), y[rows], mask[rows], rows
 
 
 # ------------------------------------------------------------------------------------------------
@@ -229,11 +275,12 @@ def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128)):
 def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = (128, 128, 128),
         epochs: int = 60, batch_size: int = 256, lr: float = 2e-3, weight_decay: float = 1e-5,
         val_fraction: float = 0.1, seed: int = 0, patience: int = 15, time_loss: str = "mse",
-        progress: bool = True) -> tuple[Any, dict[str, Any]]:
+        groups: np.ndarray | None = None, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Train the predictor on ``x`` (B, n_in), targets ``y`` and ``mask`` of :func:`targets`:
     binary cross-entropy on the class heads, mean squared error on the standardised regression
-    heads (masked), Adam with a cosine learning rate; keeps the weights of the best validation
-    loss (rows split at random: each row is its own episode and conditions). ``time_loss="l1"``
+    heads (masked), AdamW with a one-cycle learning rate; keeps the weights of the best
+    validation loss. The validation rows are a random ``val_fraction`` of the ``groups`` (episode
+    of each row; default: each row its own), so that no episode is on both sides. ``time_loss="l1"``
     fits the time ratio's conditional median instead of its mean: sharper at the knee where a
     later cut stops lengthening the stroke (the mean smooths it into a bias). Returns the network
     and the loss history."""
@@ -246,9 +293,11 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     gen = torch.Generator().manual_seed(seed)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    idx = rng.permutation(x.shape[0])
-    nv = max(1, int(round(val_fraction * x.shape[0])))
-    vi, ti = idx[:nv], idx[nv:]
+    g = np.arange(x.shape[0]) if groups is None else np.asarray(groups)
+    uniq = rng.permutation(np.unique(g))
+    nv = max(1, int(round(val_fraction * uniq.size)))
+    is_val = np.isin(g, uniq[:nv])
+    vi, ti = np.flatnonzero(is_val), rng.permutation(np.flatnonzero(~is_val))
     net = make_net(x.shape[1], hidden)
     xt = torch.as_tensor(x, dtype=torch.float32)
     yt = torch.as_tensor(y, dtype=torch.float32)
@@ -316,34 +365,60 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
 
 class ESACPredictor:
     """The trained network with its units: :meth:`__call__` maps observations (in the model's
-    layout) to the predicted outcome of cutting now, in SI units."""
+    layout) to the predicted outcome of cutting now, or ``delay_s`` later, in SI units.
+    ``lookahead_s``: the delays the model was trained on (empty without ``delay_input``)."""
 
-    def __init__(self, net, layout: Mapping[str, Any]):
+    def __init__(self, net, layout: Mapping[str, Any], delay_input: bool = False,
+                 lookahead_s: Sequence[float] = ()):
         self.net = net
         self.layout = dict(layout)
+        self.delay_input = bool(delay_input)
+        self.lookahead_s = np.asarray([d for d in lookahead_s if d > 0], dtype=float)
+        if self.delay_input != (net.in_mean.shape[0] == int(layout["size"]) + 1):
+            raise ValueError(f"the network takes {net.in_mean.shape[0]} inputs: not the "
+                             f"observation size {layout['size']}"
+                             f"{' + 1 (delay)' if self.delay_input else ''}")
         feats = {f["name"]: f for f in layout["features"]}
         self.stroke_m = float(feats["position"]["scale"])
 
-    def raw(self, obs: np.ndarray) -> np.ndarray:
+    def raw(self, x: np.ndarray) -> np.ndarray:
+        """The network's outputs (class logits, regression values in units) for inputs ``x``."""
         torch = _torch()
         with torch.no_grad():
-            out = self.net(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
+            out = self.net(torch.as_tensor(np.asarray(x, dtype=np.float32)))
             nc = len(CLASS_HEADS)
             out[:, nc:] = out[:, nc:] * self.net.out_std + self.net.out_mean
         return out.numpy().astype(np.float64)
 
-    def __call__(self, obs: np.ndarray) -> dict[str, np.ndarray]:
-        o = self.raw(np.atleast_2d(obs))
+    def __call__(self, obs: np.ndarray, delay_s: float | Sequence[float] | None = None
+                 ) -> dict[str, np.ndarray]:
+        """Predictions for observations ``obs`` (B, size): arrays of shape (B,), or (B, D) for a
+        sequence of ``D`` delays [s] (models with ``delay_input`` only)."""
+        obs = np.atleast_2d(np.asarray(obs, dtype=np.float32))
+        b = obs.shape[0]
+        shape: tuple[int, ...] = (b,)
+        if self.delay_input:
+            d = np.atleast_1d(np.asarray(0.0 if delay_s is None else delay_s, np.float32))
+            if np.ndim(delay_s) == 1:
+                shape = (b, d.size)
+            x = np.concatenate([np.repeat(obs, d.size, axis=0),
+                                np.tile(d, b)[:, None]], axis=1)
+        elif delay_s is not None and np.any(np.asarray(delay_s) != 0):
+            raise ValueError("this ESAC model predicts a cut now only (no delay input)")
+        else:
+            x = obs
+        o = self.raw(x)
         p_c = 0.5 * (1.0 + np.tanh(0.5 * o[:, 0]))  # logistic, without overflow
         p_s = 0.5 * (1.0 + np.tanh(0.5 * o[:, 1]))
-        x, lr, tc, wf, ec = (o[:, 2 + k] for k in range(5))
+        xf, lr, tc, wf, ec = (o[:, 2 + k] for k in range(5))
         ratio = np.exp(np.minimum(lr, 5.0))
-        return {"p_complete": p_c, "p_stick": p_s,
-                "final_position_m": np.minimum(x, 1.0) * self.stroke_m,
-                "stroke_time_s": ratio * tc, "conventional_time_s": tc,
-                "time_increase": ratio - 1.0,
-                "wasted_fraction": wf, "wasted_energy_j": wf * ec,
-                "energy_conventional_j": ec}
+        out = {"p_complete": p_c, "p_stick": p_s,
+               "final_position_m": np.minimum(xf, 1.0) * self.stroke_m,
+               "stroke_time_s": ratio * tc, "conventional_time_s": tc,
+               "time_increase": ratio - 1.0,
+               "wasted_fraction": wf, "wasted_energy_j": wf * ec,
+               "energy_conventional_j": ec}
+        return {k: v.reshape(shape) for k, v in out.items()}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -438,8 +513,8 @@ def plot_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], path: str
 # controller
 # ------------------------------------------------------------------------------------------------
 RULE_DEFAULTS = {"margin": 0.05, "max_time_increase": 0.2, "max_stick": 0.5,
-                 "tolerance_m": 0.002, "lookback": 0, "w_time": 0.3, "w_stick": 0.5,
-                 "hysteresis": 0.0}
+                 "tolerance_m": 0.002, "lookahead": 0, "w_time": 0.3, "w_stick": 0.5,
+                 "w_stall": 2.0, "hysteresis": 0.0}
 
 
 class ESACPolicy(LearnedPolicy):
@@ -450,14 +525,15 @@ class ESACPolicy(LearnedPolicy):
     2. within the time demand: predicted stroke time at most ``1 + max_time_increase`` times the
        predicted conventional one (or at most ``time_demand_s`` seconds if given);
     3. with a predicted stick-slip risk of at most ``max_stick``;
-    4. and, with ``lookback > 0``, that waiting no longer pays: the predicted objective of cutting
-       now, ``-wasted_fraction - w_time * time_increase - w_stick * p_stick``, has not risen by
-       more than ``hysteresis`` over the last ``lookback`` control periods. The time demand is then
-       a bound, and the trade-off inside it is the objective's (``w_time``, ``w_stick``).
+    4. and, with ``lookahead`` (a model with ``delay_input``), that waiting no longer pays: no cut
+       ``Δ`` later (``Δ`` in the predictor's ``lookahead_s``) has a predicted objective
+       (:meth:`objective`) more than ``hysteresis`` above that of cutting now. The time demand
+       is then a bound, and the trade-off inside it is the objective's (``w_time``,
+       ``w_stick``, ``w_stall``).
 
-    With ``lookback = 0`` (the thesis's rule) it cuts as soon as 1-3 hold, i.e. as late as the time
-    demand allows. Every parameter may be an array with one value per observation row (sweeps).
-    ``last_prediction`` holds the predictions of the last call.
+    Without ``lookahead`` (the thesis's rule) it cuts as soon as 1-3 hold, i.e. as late as the
+    time demand allows. Every parameter may be an array with one value per observation row
+    (sweeps). ``last_prediction`` holds the predictions (cut now) of the last call.
     """
 
     name = "esac"
@@ -467,9 +543,10 @@ class ESACPolicy(LearnedPolicy):
                  max_time_increase: float | np.ndarray = RULE_DEFAULTS["max_time_increase"],
                  max_stick: float | np.ndarray = RULE_DEFAULTS["max_stick"],
                  tolerance_m: float | np.ndarray = RULE_DEFAULTS["tolerance_m"],
-                 lookback: int | np.ndarray = RULE_DEFAULTS["lookback"],
+                 lookahead: int | np.ndarray = RULE_DEFAULTS["lookahead"],
                  w_time: float | np.ndarray = RULE_DEFAULTS["w_time"],
                  w_stick: float | np.ndarray = RULE_DEFAULTS["w_stick"],
+                 w_stall: float | np.ndarray = RULE_DEFAULTS["w_stall"],
                  hysteresis: float | np.ndarray = RULE_DEFAULTS["hysteresis"],
                  time_demand_s: float | np.ndarray | None = None, source: str = "the ESAC model"):
         super().__init__(env_layout, predictor.layout, source)
@@ -478,21 +555,20 @@ class ESACPolicy(LearnedPolicy):
         self.max_time_increase = np.asarray(max_time_increase, dtype=float)
         self.max_stick = np.asarray(max_stick, dtype=float)
         self.tolerance_m = np.asarray(tolerance_m, dtype=float)
-        self.lookback = np.asarray(lookback).astype(np.int64)
+        self.lookahead = np.asarray(lookahead).astype(np.int64)
         self.w_time = np.asarray(w_time, dtype=float)
         self.w_stick = np.asarray(w_stick, dtype=float)
+        self.w_stall = np.asarray(w_stall, dtype=float)
         self.hysteresis = np.asarray(hysteresis, dtype=float)
         self.time_demand_s = None if time_demand_s is None else np.asarray(time_demand_s, float)
         if np.any(self.margin < 0) or np.any(self.margin > 1):
             raise ValueError(f"margin = {margin!r} must be in [0, 1]")
-        if np.any(self.lookback < 0):
-            raise ValueError(f"lookback = {lookback!r} must be >= 0 control periods")
+        if np.any(self.lookahead != 0) and predictor.lookahead_s.size == 0:
+            raise ValueError(f"{source} predicts a cut now only: lookahead needs a model "
+                             f"trained with delay_input (train.py, esac fit.delay_input)")
         names = [f["name"] for f in predictor.layout["features"]]
-        nf = len(names)
         h = int(predictor.layout["history"])
-        self._cut_index = (h - 1) * nf + names.index("supply_cut")
-        self._time_model_index = (h - 1) * nf + names.index("time")
-        self._jbuf: np.ndarray | None = None
+        self._cut_index = (h - 1) * len(names) + names.index("supply_cut")
         self.last_prediction: dict[str, np.ndarray] | None = None
 
     def rule(self) -> dict[str, Any]:
@@ -502,43 +578,48 @@ class ESACPolicy(LearnedPolicy):
             out["time_demand_s"] = self.time_demand_s.tolist()
         return out
 
-    def objective(self, p: Mapping[str, np.ndarray]) -> np.ndarray:
-        """The predicted objective of cutting now (stall risk aside: the margin covers it)."""
-        return (-p["wasted_fraction"] - self.w_time * np.maximum(p["time_increase"], 0.0)
-                - self.w_stick * p["p_stick"])
+    def _col(self, v: np.ndarray, p: Mapping[str, np.ndarray]) -> np.ndarray:
+        """A per-row parameter shaped to broadcast against predictions ``p`` (B,) or (B, D)."""
+        ref = p["p_complete"]
+        return v.reshape(v.shape + (1,) * (ref.ndim - v.ndim)) if v.ndim == 1 else v
 
-    def decide(self, p: Mapping[str, np.ndarray], peaked: np.ndarray | bool = True
+    def objective(self, p: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The predicted objective of the cut ``p`` describes: the env's ``-wasted_fraction -
+        w_time * time_increase - w_stick * stick-slip``, with the stall risk at ``w_stall``."""
+        c = functools.partial(self._col, p=p)
+        return (-p["wasted_fraction"] - c(self.w_time) * np.maximum(p["time_increase"], 0.0)
+                - c(self.w_stick) * p["p_stick"] - c(self.w_stall) * (1.0 - p["p_complete"]))
+
+    def safe(self, p: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Rule 1: the stroke completes with the margin."""
+        c = functools.partial(self._col, p=p)
+        return ((p["p_complete"] >= 1.0 - c(self.margin))
+                & (p["final_position_m"] >= self.predictor.stroke_m - c(self.tolerance_m)))
+
+    def decide(self, p: Mapping[str, np.ndarray], later: Mapping[str, np.ndarray] | None = None
                ) -> np.ndarray:
-        """The cut decision for predictions ``p`` of :class:`ESACPredictor` (``peaked``: rule 4)."""
-        ok = p["p_complete"] >= 1.0 - self.margin
-        ok &= p["final_position_m"] >= self.predictor.stroke_m - self.tolerance_m
+        """The cut decision for predictions ``p`` of a cut now and, for rule 4, ``later`` ones
+        (B, D) of cuts after the lookahead delays."""
+        ok = self.safe(p)
         if self.time_demand_s is not None:
             ok &= p["stroke_time_s"] <= self.time_demand_s
         else:
             ok &= p["time_increase"] <= self.max_time_increase
         ok &= p["p_stick"] <= self.max_stick
-        return ok & peaked
+        if later is not None:
+            j_later = np.where(self.safe(later), self.objective(later), -np.inf).max(axis=1)
+            waiting_pays = j_later > self.objective(p) + self.hysteresis
+            ok &= ~((np.broadcast_to(self.lookahead, ok.shape) != 0) & waiting_pays)
+        return ok
 
     def act_model(self, obs: np.ndarray) -> np.ndarray:
         p = self.predictor(obs)
         self.last_prediction = p
-        b = obs.shape[0]
-        peaked: np.ndarray | bool = True
-        lmax = int(self.lookback.max()) if self.lookback.size else 0
-        if lmax > 0:
-            j = self.objective(p)
-            if self._jbuf is None or self._jbuf.shape != (b, lmax):
-                self._jbuf = np.full((b, lmax), np.nan)
-            fresh = obs[:, self._time_model_index] == 0.0
-            self._jbuf[fresh] = np.nan
-            lb = np.broadcast_to(self.lookback, (b,))
-            back = self._jbuf[np.arange(b), lmax - np.maximum(lb, 1)]
-            # rule 4 holds once the objective has not risen over the lookback (unknown: no)
-            peaked = (lb == 0) | (j - back <= self.hysteresis)
-            self._jbuf[:, :-1] = self._jbuf[:, 1:]
-            self._jbuf[:, -1] = j
+        later = None
+        if np.any(self.lookahead != 0):
+            later = self.predictor(obs, self.predictor.lookahead_s)
         already = obs[:, self._cut_index] > 0.5
-        return (self.decide(p, peaked) | already).astype(np.int64)
+        return (self.decide(p, later) | already).astype(np.int64)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -578,14 +659,16 @@ def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
     net = make_net(int(meta["n_in"]), meta["hidden"])
     net.load_state_dict(blob["state_dict"])
     net.eval()
-    return ESACPredictor(net, meta["layout"]), meta
+    return ESACPredictor(net, meta["layout"], bool(meta.get("delay_input", False)),
+                         meta.get("lookahead_s", ())), meta
 
 
 def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) -> ESACPolicy:
     """The ESAC controller saved at ``path`` for an environment of ``env_layout``, with the saved
     (tuned) rule unless overridden by ``rule``."""
     pred, meta = load(path)
-    params = {**RULE_DEFAULTS, **meta.get("rule", {}), **rule}
+    saved = {k: v for k, v in meta.get("rule", {}).items() if k in RULE_DEFAULTS}
+    params = {**RULE_DEFAULTS, **saved, **rule}
     return ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
 
 
@@ -615,3 +698,21 @@ def sweep_rule(predictor: ESACPredictor, conditions: Sequence[Any], grid: Iterab
                     "stall_rate": float(np.mean(out["stalled"][s])),
                     "saving_mean": float(np.mean(out["saving_ratio"][s]))})
     return res
+
+
+def choose_rule(sweep: Sequence[Mapping[str, Any]], max_stall_rate: float = 0.0,
+                prefer_saving_within: float = 0.0) -> Mapping[str, Any]:
+    """The rule of a :func:`sweep_rule` result to deploy: among the rules that stall at most
+    ``max_stall_rate`` (all rules if none does), the best mean return; or, with
+    ``prefer_saving_within > 0``, the rule that saves the most air among those within that much
+    of the best return. The objective is flat near its optimum (a few percent of stroke time
+    buy a few percent of air), so this breaks near-ties toward the thesis's aim: less air."""
+    if not sweep:
+        raise ValueError("empty rule sweep")
+    if prefer_saving_within < 0:
+        raise ValueError(f"prefer_saving_within = {prefer_saving_within} must be >= 0")
+    ok = [r for r in sweep if r["stall_rate"] <= max_stall_rate] or list(sweep)
+    best = max(r["return_mean"] for r in ok)
+    near = [r for r in ok if r["return_mean"] >= best - prefer_saving_within]
+    return max(near, key=lambda r: (r["saving_mean"], r["return_mean"])) \
+        if prefer_saving_within > 0 else max(ok, key=lambda r: r["return_mean"])

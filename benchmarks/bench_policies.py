@@ -142,16 +142,17 @@ def bench_train(quick: bool, seed: int) -> dict:
         data = esac.rollouts(tmp, n, seed, int(cfg["env"]["history"]), cfg["preset"],
                              progress=False)
         wall = time.perf_counter() - t0
-    y, m = esac.targets(data, 0.18)
     fit = cfg["fit"]
+    x, y, m, _ = esac.samples(data, 0.18, bool(fit.get("delay_input", False)))
     epochs = 3
     t0 = time.perf_counter()
-    esac.fit(data["obs"], y, m, hidden=tuple(fit["hidden"]), epochs=epochs,
+    esac.fit(x, y, m, hidden=tuple(fit["hidden"]), epochs=epochs,
              batch_size=int(fit["batch_size"]), lr=float(fit["lr"]), patience=epochs,
              progress=False)
     fwall = time.perf_counter() - t0
     out["esac"] = {"rollouts": n, "rollout_wall_s": wall, "rollouts_per_s": n / wall,
-                   "fit_s_per_epoch_per_10k": fwall / epochs / data["obs"].shape[0] * 1e4}
+                   "samples_per_rollout": x.shape[0] / data["obs"].shape[0],
+                   "fit_s_per_epoch_per_10k": fwall / epochs / x.shape[0] * 1e4}
     return out
 
 

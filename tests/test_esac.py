@@ -61,6 +61,16 @@ def test_rollouts_record_the_observation_at_the_cut(tmp_path):
     assert len(list(tmp_path.glob("esac-rollouts-*.npz"))) == 1
     y, mask = esac.targets(data, 0.18)
     assert y.shape == (n, 7) and np.all(mask[:, 3] == comp)
+    # the lagged observations: the same episode seen lag periods before the cut
+    lags = np.asarray(esac.LAGS)
+    assert data["obs_lag"].shape == (n, lags.size, 14)
+    np.testing.assert_array_equal(data["obs_lag"][:, 0], data["obs"])
+    np.testing.assert_allclose(data["lag_s"], lags * 0.005)
+    t_lag = data["obs_lag"][:, :, 12] * 4.0
+    seen = ~np.isnan(t_lag)
+    expect = data["t_cut"][:, None] - data["lag_s"][None, :]
+    np.testing.assert_allclose(t_lag[seen], expect[seen], atol=1e-6)
+    assert np.all(expect[~seen] < -1e-9)   # missing only where the episode had not begun
 
 
 def _predictor(history=2):
@@ -96,24 +106,79 @@ def test_rule_needs_completion_with_margin_time_demand_and_stick_risk():
 
 
 class _Scripted(esac.ESACPredictor):
-    """Predictions from a script over time: the objective rises, peaks at step 5, falls."""
+    """Predictions from a script over control steps: the objective of a cut at step ``k`` is
+    ``-|k - 5| / 100`` (it peaks at step 5); a cut ``Δ`` later is a cut at ``k + Δ / 5 ms``."""
 
     def __init__(self, layout):
         self.layout, self.stroke_m, self.k = layout, 0.18, 0
+        self.delay_input, self.lookahead_s = True, np.array([0.005, 0.01])
 
-    def __call__(self, obs):
-        j = -abs(self.k - 5) * 0.01
-        self.k += 1
-        return _pred(wasted_fraction=-j)
+    def __call__(self, obs, delay_s=None):
+        if delay_s is None:
+            k = self.k
+            self.k += 1
+            return _pred(wasted_fraction=abs(k - 5) * 0.01)
+        ks = self.k - 1 + np.asarray(delay_s) / 0.005
+        return {key: np.full((1, ks.size), v[0]) for key, v in _pred().items()} | {
+            "wasted_fraction": np.abs(ks - 5)[None, :] * 0.01}
 
 
-def test_lookback_rule_cuts_once_the_predicted_objective_stops_rising():
+def test_lookahead_rule_cuts_once_no_later_cut_predicts_better():
     lay = _layout()
-    pol = esac.ESACPolicy(lay, _Scripted(lay), lookback=1, max_time_increase=1.0, max_stick=1.0)
     obs = np.zeros((1, 14), dtype=np.float32)
-    obs[0, 12] = 0.01  # not a fresh episode's first sample
-    acts = [int(pol.act(obs)[0]) for _ in range(9)]
-    assert acts.index(1) == 6  # the first step after the peak at step 5
+    pol = esac.ESACPolicy(lay, _Scripted(lay), lookahead=1, max_time_increase=1.0, max_stick=1.0)
+    assert [int(pol.act(obs)[0]) for _ in range(9)].index(1) == 5   # at the peak
+    eager = esac.ESACPolicy(lay, _Scripted(lay), lookahead=0, max_time_increase=1.0,
+                            max_stick=1.0)
+    assert int(eager.act(obs)[0]) == 1   # the thesis's rule: as soon as 1-3 hold
+    loose = esac.ESACPolicy(lay, _Scripted(lay), lookahead=1, hysteresis=0.015,
+                            max_time_increase=1.0, max_stick=1.0)
+    assert [int(loose.act(obs)[0]) for _ in range(9)].index(1) == 4   # within the hysteresis
+    with pytest.raises(ValueError, match="delay_input"):
+        esac.ESACPolicy(lay, _predictor(), lookahead=1)
+
+
+def test_delay_input_predictor_shapes_and_samples():
+    lay = _layout()
+    net = esac.make_net(15, (8,))
+    pred = esac.ESACPredictor(net, lay, delay_input=True, lookahead_s=[0.0, 0.01, 0.04])
+    np.testing.assert_array_equal(pred.lookahead_s, [0.01, 0.04])
+    obs = np.random.default_rng(0).random((3, 14)).astype(np.float32)
+    now, later = pred(obs), pred(obs, [0.0, 0.01, 0.04])
+    assert now["p_complete"].shape == (3,) and later["p_complete"].shape == (3, 3)
+    np.testing.assert_allclose(later["wasted_fraction"][:, 0], now["wasted_fraction"], rtol=1e-6)
+    with pytest.raises(ValueError, match="inputs"):
+        esac.ESACPredictor(net, lay)   # 15 inputs are not an observation of 14
+    with pytest.raises(ValueError, match="no delay input"):
+        _predictor()(obs, [0.01])
+    # samples: one per recorded lag, the delay last, the episode's targets repeated
+    data = {"obs": obs, "obs_lag": np.stack([obs, obs * 0.5], axis=1),
+            "lag_s": np.array([0.0, 0.01]), "completed": np.array([True, True, False]),
+            "stick_slip_events": np.zeros(3, int), "final_position_m": np.full(3, 0.18),
+            "stroke_time_s": np.array([1.0, 1.2, np.nan]),
+            "conventional_time_s": np.ones(3), "energy_wasted_j": np.ones(3),
+            "energy_conventional_j": np.full(3, 2.0)}
+    data["obs_lag"][2, 1] = np.nan   # cut before the lag's observation existed
+    x, y, m, ep = esac.samples(data, 0.18)
+    assert x.shape == (5, 15) and list(ep) == [0, 0, 1, 1, 2]
+    np.testing.assert_allclose(x[:, -1], [0.0, 0.01, 0.0, 0.01, 0.0], rtol=1e-6)
+    np.testing.assert_array_equal(x[1, :14], obs[0] * 0.5)
+    np.testing.assert_array_equal(y[3], y[2])
+    x0, _, _, ep0 = esac.samples(data, 0.18, delay_input=False)
+    assert x0.shape == (3, 14) and list(ep0) == [0, 1, 2]
+
+
+def test_choose_rule_prefers_saving_only_among_near_best_returns():
+    sweep = [{"return_mean": -0.40, "saving_mean": 0.60, "stall_rate": 0.0},
+             {"return_mean": -0.405, "saving_mean": 0.66, "stall_rate": 0.0},
+             {"return_mean": -0.45, "saving_mean": 0.75, "stall_rate": 0.0},
+             {"return_mean": -0.30, "saving_mean": 0.80, "stall_rate": 0.1}]
+    assert esac.choose_rule(sweep)["saving_mean"] == 0.60          # best return, no stalls
+    assert esac.choose_rule(sweep, 0.2)["saving_mean"] == 0.80     # stalls allowed
+    assert esac.choose_rule(sweep, prefer_saving_within=0.01)["saving_mean"] == 0.66
+    assert esac.choose_rule(sweep, prefer_saving_within=0.1)["saving_mean"] == 0.75
+    with pytest.raises(ValueError, match="prefer_saving_within"):
+        esac.choose_rule(sweep, prefer_saving_within=-1)
 
 
 def test_save_load_roundtrip_and_refusal(tmp_path):
