@@ -464,7 +464,28 @@ def accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray]) -> dict[str, A
             out["stroke_time_mae_ms_within_50pct"] = float(np.mean(np.abs(err[near])) * 1e3)
             out["time_increase_mae_within_50pct"] = float(np.mean(np.abs(
                 p["time_increase"][comp][near] - ti_true[near])))
+    if pred.delay_input and "obs_lag" in data:
+        out["by_delay"] = [_delay_accuracy(pred, data, j) for j in range(len(data["lag_s"]))]
     return out
+
+
+def _delay_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], j: int
+                    ) -> dict[str, Any]:
+    """Errors of the predictions made ``lag_s[j]`` before the cut (lookahead rule's inputs)."""
+    ok = ~np.isnan(data["obs_lag"][:, j, 0])
+    delay = float(data["lag_s"][j])
+    p = pred(data["obs_lag"][ok, j], delay)
+    comp = data["completed"][ok].astype(bool)
+    wf = data["energy_wasted_j"][ok] / data["energy_conventional_j"][ok]
+    row = {"delay_s": delay, "samples": int(ok.sum()),
+           "completion_accuracy": float(((p["p_complete"] >= 0.5) == comp).mean()),
+           "wasted_fraction_mae": float(np.mean(np.abs(p["wasted_fraction"] - wf)))}
+    ti = data["stroke_time_s"][ok][comp] / data["conventional_time_s"][ok][comp] - 1.0
+    near = ti <= 0.5
+    if near.any():
+        row["time_increase_mae_within_50pct"] = float(np.mean(np.abs(
+            p["time_increase"][comp][near] - ti[near])))
+    return row
 
 
 def plot_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], path: str | Path,
