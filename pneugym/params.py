@@ -76,10 +76,10 @@ class CylinderParams:
     bore_m: float = 0.125
     rod_m: float = 0.032
     stroke_m: float = 0.18
-    dead_volume_m3: float = 2.41e-4  # calibrated: each chamber at its end of stroke, port included
-    port_area_m2: float = 3.94e-5  # calibrated: driving port, line -> chamber
-    cushion_length_m: float = 0.0133  # calibrated
-    cushion_factor_drive: float = 0.325  # calibrated: drive port area factor in the first zone
+    dead_volume_m3: float = 2.44e-4  # calibrated: each chamber at its end of stroke, port included
+    port_area_m2: float = 3.89e-5  # calibrated: driving port, line -> chamber
+    cushion_length_m: float = 0.0136  # calibrated
+    cushion_factor_drive: float = 0.420  # calibrated: drive port area factor in the first zone
     cushion_factor_exhaust: float = 0.0101  # calibrated: exhaust area factor in the last zone
     cushion_ramp_m: float = 0.002  # smooth transition of the cushion factor (numerics)
     moving_mass_extra_kg: float = 1.0  # "other masses" Mo (thesis 6.1)
@@ -110,7 +110,7 @@ class LineParams:
     ``(position_m, volume_m3)`` along the line (transducer tees), added to the cell at that place.
     """
 
-    length_m: float = 0.688  # calibrated (not stated in the thesis)
+    length_m: float = 0.725  # calibrated once, then held (not stated in the thesis; see pneugym.calibrate)
     diameter_m: float = 0.005
     n_cells: int = 3
     model: str = "fd"
@@ -149,8 +149,8 @@ class ValveParams:
     orifice flow is linear in Δp, so that the flow is smooth through Δp = 0.
     """
 
-    area_m2: float = 1.55e-5  # calibrated: supply path through the main valve
-    exhaust_area_m2: float = 3.24e-5  # calibrated: exhaust chamber -> atmosphere, whole path
+    area_m2: float = 1.56e-5  # calibrated: supply path through the main valve
+    exhaust_area_m2: float = 3.25e-5  # calibrated: exhaust chamber -> atmosphere, whole path
     discharge_coefficient: float = 0.72
     delay_s: float | None = None
     ramp_s: float = 0.01

@@ -311,7 +311,7 @@ def test_stall_termination():
     assert out["terminated"] and fi["stalled"] and not fi["completed"]
     assert fi["position_m"] < 0.18
     assert fi["cutoff_time_s"] == pytest.approx(0.3)
-    assert 0.1 > fi["position_m"] > 0.01  # it moved, then stuck (~0.1 m)
+    assert 0.15 > fi["position_m"] > 0.01  # it moved, then stuck partway (~0.1 m of 0.18)
     assert fi["time_s"] < 3.5  # before the 4 s limit
     early = run(env, always)["final"]  # cut before it ever moved
     assert early["stalled"] and early["position_m"] == 0.0 and early["time_s"] < 0.5
