@@ -305,7 +305,9 @@ def _sb3_parts():
             super().__init__()
             self.out, self.refs, self.record, self.layout = out, refs, record, layout
             self.conds, self.env_cfg, self.seed = conds, env_cfg, seed
-            self.rule, self.grid = decision["rule"], list(decision.get("grid", [0.5]))
+            self.rules = decision_grids(decision)
+            self.rule = "/".join(self.rules)
+            self.tolerance = float(decision.get("prefer_saving_within", 0.0))
             self.history: list[dict[str, Any]] = []
             self.best = -math.inf
 
@@ -314,9 +316,9 @@ def _sb3_parts():
             return True
 
         def report(self, argmax_return: float | None) -> None:
-            rows = sweep_decisions(self.model, self.layout, self.conds, self.env_cfg, self.seed,
-                                   self.rule, self.grid)
-            top = max(rows, key=lambda r: r["return"])
+            rows = [r for rule, grid in self.rules.items() for r in sweep_decisions(
+                self.model, self.layout, self.conds, self.env_cfg, self.seed, rule, grid)]
+            top = choose_decision(rows, self.tolerance)
             ret = top["return"]
             frac = oracle_fraction(ret, self.refs)
             self.logger.record("validation/return", ret)
@@ -325,7 +327,7 @@ def _sb3_parts():
             if frac is not None:
                 self.logger.record("validation/oracle_fraction", frac)
             self.logger.dump(self.num_timesteps)
-            decision = {"rule": self.rule, "value": top["value"]}
+            decision = {"rule": top["rule"], "value": top["value"]}
             row = {"timesteps": int(self.num_timesteps), "return": ret, "oracle_fraction": frac,
                    "stall_rate": top["stall_rate"], "decision": decision,
                    "argmax_return": argmax_return, "grid": rows}
@@ -340,8 +342,9 @@ def _sb3_parts():
                         best=max(self.history, key=lambda r: r["return"]))
             from tqdm import tqdm
             fr = f"{frac:.3f}" if frac is not None else "-"
-            tqdm.write(f"validation @ {self.num_timesteps}: return {ret:.4f} ({self.rule} "
-                       f"{top['value']:g}), oracle fraction {fr}, stall {top['stall_rate']:.3f}"
+            tqdm.write(f"validation @ {self.num_timesteps}: return {ret:.4f} ({top['rule']} "
+                       f"{top['value']:g}), oracle fraction {fr}, stall {top['stall_rate']:.3f}, "
+                       f"saving {top['saving']:.3f}"
                        f"{'  (new best)' if row.get('new_best') else ''}")
 
     return dict(PPO=PPO, DQN=LatchedDQN, EvalCallback=EvalCallback, VecEnv=TrainingVecEnv,
@@ -363,9 +366,32 @@ def sweep_decisions(model, layout: Mapping[str, Any], conds: Sequence[Any],
     pol = SB3Policy(env.observation_layout(), model, layout,
                     decision={"rule": rule, "value": np.repeat(np.asarray(grid, float), n)})
     out = run_first_episodes(env, pol, list(conds) * len(grid), seed)
-    return [{"value": float(v), "return": float(np.mean(out["objective"][k * n:(k + 1) * n])),
-             "stall_rate": float(np.mean(out["stalled"][k * n:(k + 1) * n]))}
+    return [{"rule": rule, "value": float(v),
+             "return": float(np.mean(out["objective"][k * n:(k + 1) * n])),
+             "stall_rate": float(np.mean(out["stalled"][k * n:(k + 1) * n])),
+             "saving": float(np.mean(out["saving_ratio"][k * n:(k + 1) * n]))}
             for k, v in enumerate(grid)]
+
+
+def decision_grids(decision: Mapping[str, Any]) -> dict[str, list[float]]:
+    """The decision rules to tune and their grids: ``decision["rules"]`` (``{rule: grid}``), or
+    the single ``decision["rule"]`` over ``decision["grid"]``."""
+    if decision.get("rules"):
+        return {str(k): [float(x) for x in v] for k, v in decision["rules"].items()}
+    return {str(decision["rule"]): [float(x) for x in decision.get("grid", [0.5])]}
+
+
+def choose_decision(rows: Sequence[Mapping[str, Any]], prefer_saving_within: float = 0.0
+                    ) -> dict[str, Any]:
+    """The validation row to act by: the best mean return, or, with ``prefer_saving_within``
+    > 0, the row that saves most among those within that much of the best return and stalling
+    no more often (the return's near-ties are noise on 48 conditions; the saving is the aim)."""
+    top = max(rows, key=lambda r: r["return"])
+    if prefer_saving_within <= 0:
+        return dict(top)
+    near = [r for r in rows if r["return"] >= top["return"] - prefer_saving_within
+            and r["stall_rate"] <= top["stall_rate"]]
+    return dict(max(near, key=lambda r: (r.get("saving", 0.0), r["return"])))
 
 
 def _schedule(v: Any):
@@ -403,15 +429,22 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     env_cfg = dict(cfg.get("env", {}))
     num_envs = int(env_cfg.pop("num_envs", 16))
     env_cfg["preset"] = cfg["preset"]
+    asym = bool(cfg.get("privileged_critic", False))
+    if asym and algo != "ppo":
+        raise ValueError("privileged_critic needs an actor-critic (ppo)")
+    if asym:  # the critic sees the episode's conditions, the actor does not
+        env_cfg["observe_params"] = True
     venv = P["VecEnv"](num_envs=num_envs, **env_cfg)
     layout = venv.observation_layout()
+    # the decision sweep runs the policy as evaluate.py does: without privileged features
+    sweep_cfg = {k: v for k, v in env_cfg.items() if k != "observe_params"}
     val = cfg["validation"]
     _check_seed("validation", int(val["seed"]), int(val["episodes"]))
     conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]))
     eval_env = P["VecEnv"](conditions=conds, seed=int(val["seed"]), **env_cfg)
     print(f"validation references ({len(conds)} conditions, conventional and oracle) ...",
           flush=True)
-    refs = validation_references(conds, env_cfg, int(val["seed"]),
+    refs = validation_references(conds, sweep_cfg, int(val["seed"]),
                                  Path(cfg.get("cache_dir", "runs/.cache")))
     record(validation_references=refs)
     cls = P["PPO"] if algo == "ppo" else P["DQN"]
@@ -444,8 +477,13 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
         venv.seed(seed + 7919 * (model.num_timesteps // 1000 + 1) % 100_000)
         model._last_obs = None
     else:
-        model = cls("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
-                    policy_kwargs=cfg.get("policy_kwargs"), **kwargs)
+        policy, pkw = "MlpPolicy", dict(cfg.get("policy_kwargs") or {})
+        if asym:
+            from agents.learned import AsymmetricActorCriticPolicy
+            policy = AsymmetricActorCriticPolicy
+            pkw["actor_inputs"] = int(layout["size"]) - len(layout["param_features"])
+        model = cls(policy, venv, seed=seed, device="cpu", verbose=0,
+                    policy_kwargs=pkw or None, **kwargs)
         p_cut = cfg.get("init_cut_prob")
         if algo == "ppo" and p_cut:  # start from a policy that cuts rarely (latched action)
             with torch.no_grad():
@@ -457,7 +495,7 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     model.pneugym_decision = {"rule": "argmax"}
     done0 = int(model.num_timesteps)
     remaining = max(0, total - done0)
-    after = P["AfterEval"](out, refs, record, layout, conds, env_cfg, int(val["seed"]),
+    after = P["AfterEval"](out, refs, record, layout, conds, sweep_cfg, int(val["seed"]),
                            cfg.get("decision", {"rule": "argmax", "grid": [0.0]}))
     if resume and run.get("validation"):
         after.history = list(run["validation"])

@@ -146,7 +146,7 @@ class LearnedPolicy(Policy):
 
 
 #: How an SB3 model's network becomes a deterministic cut-off decision (see :class:`SB3Policy`).
-DECISION_RULES = ("argmax", "quantile", "advantage")
+DECISION_RULES = ("argmax", "quantile", "hazard", "advantage")
 
 
 class SB3Policy(LearnedPolicy):
@@ -159,6 +159,8 @@ class SB3Policy(LearnedPolicy):
       latched cut is a stopping time: this is the ``value``-quantile of the policy's own
       stopping-time distribution, where ``argmax`` (``p_cut > 0.5`` in one step) may never cut
       when the policy spreads its hazard over several steps;
+    - ``hazard`` (PPO, A2C): cut at the first step whose own ``p_cut >= value`` (``argmax`` is
+      ``hazard`` at 0.5);
     - ``advantage`` (DQN): cut once ``Q(cut) - Q(keep) >= value``.
 
     ``value`` may be an array with one entry per observation row (sweeps).
@@ -176,18 +178,29 @@ class SB3Policy(LearnedPolicy):
                     f"{source} expects observations of shape {shape}, the environment gives "
                     f"({env_layout['size']},): its observation layout differs")
             model_layout = env_layout
+        # an asymmetric actor-critic (critic on privileged features, actor without): it runs
+        # in an environment without them, which then get zeros the actor never reads
+        self.actor_inputs = getattr(model.policy, "actor_inputs", None)
+        n_priv = len(model_layout.get("param_features", []))
+        full = dict(model_layout)
+        self._pad = 0
+        if (n_priv and self.actor_inputs is not None and not env_layout.get("param_features")
+                and self.actor_inputs == int(full["size"]) - n_priv):
+            model_layout = actor_only_layout(full)
+            self._pad = n_priv
         super().__init__(env_layout, model_layout, source)
+        self.full_layout = full
         shape = tuple(model.observation_space.shape)
-        if shape != (int(self.model_layout["size"]),):
+        if shape != (int(full["size"]),):
             raise LayoutMismatchError(f"{source}: the network takes {shape}, its recorded layout "
-                                      f"has size {self.model_layout['size']}")
+                                      f"has size {full['size']}")
         self.model = model
         self.decision = dict(decision or {"rule": "argmax"})
         rule = self.decision.get("rule")
         if rule not in DECISION_RULES:
             raise ValueError(f"decision rule {rule!r}: choose one of {DECISION_RULES}")
-        if rule == "quantile" and not hasattr(model.policy, "get_distribution"):
-            raise ValueError(f"{source}: the quantile rule needs a stochastic policy (PPO, A2C)")
+        if rule in ("quantile", "hazard") and not hasattr(model.policy, "get_distribution"):
+            raise ValueError(f"{source}: the {rule} rule needs a stochastic policy (PPO, A2C)")
         if rule == "advantage" and not hasattr(model, "q_net"):
             raise ValueError(f"{source}: the advantage rule needs a Q-network (DQN)")
         self.value = np.asarray(self.decision.get("value", 0.5), dtype=float)
@@ -196,6 +209,14 @@ class SB3Policy(LearnedPolicy):
         self._t_idx = base + names.index("time")
         self._cut_idx = base + names.index("supply_cut")
         self._log_survival: np.ndarray | None = None
+
+    def model_obs(self, obs: np.ndarray) -> np.ndarray:
+        """``obs`` in the network's layout: stacked when needed, and zeros in the privileged
+        columns of an asymmetric model's critic (its actor does not read them)."""
+        x = super().model_obs(obs)
+        if self._pad:
+            x = np.concatenate([x, np.zeros((x.shape[0], self._pad), dtype=x.dtype)], axis=1)
+        return x
 
     def _net_input(self, obs: np.ndarray):
         import torch
@@ -216,6 +237,8 @@ class SB3Policy(LearnedPolicy):
             else:
                 dist = self.model.policy.get_distribution(self._net_input(obs))
                 p = dist.distribution.probs[:, 1].numpy().astype(np.float64)
+                if rule == "hazard":
+                    return ((p >= self.value) | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
                 b = obs.shape[0]
                 if self._log_survival is None or self._log_survival.shape[0] != b:
                     self._log_survival = np.zeros(b)
@@ -233,3 +256,89 @@ def read_run(path: Path) -> dict[str, Any] | None:
         with open(f) as fh:
             return json.load(fh)
     return None
+
+
+# ------------------------------------------------------------------------------------------------
+# an actor-critic whose critic alone sees the privileged features (asymmetric actor-critic)
+# ------------------------------------------------------------------------------------------------
+def actor_only_layout(layout: Mapping[str, Any]) -> dict[str, Any]:
+    """``layout`` without its privileged features: what an asymmetric policy's actor sees."""
+    out = dict(layout)
+    n = len(layout.get("param_features", []))
+    out["param_features"] = []
+    out["size"] = int(layout["size"]) - n
+    return out
+
+
+def _build_asymmetric_policy():
+    """The SB3 classes, built on first use (``import agents`` stays free of torch and SB3)."""
+    import torch as th
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.torch_layers import MlpExtractor
+    from torch import nn
+
+    class AsymmetricMlpExtractor(nn.Module):
+        """Actor MLP on the first ``actor_inputs`` features only, critic MLP on all of them."""
+
+        def __init__(self, feature_dim: int, actor_inputs: int, net_arch, activation_fn,
+                     device="auto"):
+            super().__init__()
+            self.actor_inputs = int(actor_inputs)
+            actor = MlpExtractor(self.actor_inputs, net_arch, activation_fn, device)
+            critic = MlpExtractor(feature_dim, net_arch, activation_fn, device)
+            self.policy_net, self.value_net = actor.policy_net, critic.value_net
+            self.latent_dim_pi, self.latent_dim_vf = actor.latent_dim_pi, critic.latent_dim_vf
+
+        def forward(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+            return self.forward_actor(features), self.forward_critic(features)
+
+        def forward_actor(self, features: th.Tensor) -> th.Tensor:
+            return self.policy_net(features[..., :self.actor_inputs])
+
+        def forward_critic(self, features: th.Tensor) -> th.Tensor:
+            return self.value_net(features)
+
+    class AsymmetricActorCriticPolicy(ActorCriticPolicy):
+        """SB3 ``ActorCriticPolicy`` for observations ``[public | privileged]``: the actor uses
+        the first ``actor_inputs`` columns only, the critic (training only) all of them, so that
+        the advantage ``J - V(s)`` of PPO loses the variance the conditions explain. The action
+        never depends on the privileged columns: at evaluation they may be zeros."""
+
+        def __init__(self, observation_space, action_space, lr_schedule, *args,
+                     actor_inputs: int | None = None, **kwargs):
+            n = int(observation_space.shape[0])
+            self.actor_inputs = n if actor_inputs is None else int(actor_inputs)
+            if not 0 < self.actor_inputs <= n:
+                raise ValueError(f"actor_inputs {actor_inputs} must lie in 1..{n}")
+            kwargs.setdefault("share_features_extractor", True)
+            super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
+
+        def _build_mlp_extractor(self) -> None:
+            self.mlp_extractor = AsymmetricMlpExtractor(
+                self.features_dim, self.actor_inputs, self.net_arch, self.activation_fn,
+                self.device)
+
+        def _get_constructor_parameters(self) -> dict[str, Any]:
+            data = super()._get_constructor_parameters()
+            data["actor_inputs"] = self.actor_inputs
+            return data
+
+    AsymmetricActorCriticPolicy.__module__ = __name__
+    AsymmetricActorCriticPolicy.__qualname__ = "AsymmetricActorCriticPolicy"
+    AsymmetricMlpExtractor.__module__ = __name__
+    AsymmetricMlpExtractor.__qualname__ = "AsymmetricMlpExtractor"
+    return {"AsymmetricActorCriticPolicy": AsymmetricActorCriticPolicy,
+            "AsymmetricMlpExtractor": AsymmetricMlpExtractor}
+
+
+_LAZY: dict[str, Any] = {}
+
+
+def __getattr__(name: str):
+    """``agents.learned.AsymmetricActorCriticPolicy`` (and its extractor), built on first access,
+    so that pickled SB3 models find them by name."""
+    if name in ("AsymmetricActorCriticPolicy", "AsymmetricMlpExtractor"):
+        if not _LAZY:
+            _LAZY.update(_build_asymmetric_policy())
+        return _LAZY[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

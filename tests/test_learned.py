@@ -111,3 +111,76 @@ def test_sb3_decision_rules():
         assert int(p.act(obs)[0]) == want
     with pytest.raises(ValueError, match="decision rule"):
         SB3Policy(lay, dqn, lay, decision={"rule": "vote"})
+
+
+def test_sb3_hazard_rule():
+    """hazard: cut at the first step whose own p_cut reaches the value (latched after)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from agents.learned import SB3Policy
+    from pneugym.envs.sb3 import CutOffVecEnv
+
+    venv = CutOffVecEnv(num_envs=2)
+    lay = venv.observation_layout()
+    ppo = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0)
+    with torch.no_grad():
+        ppo.policy.action_net.weight.zero_()
+        ppo.policy.action_net.bias[:] = torch.tensor([0.0, float(np.log(0.1 / 0.9))])  # p = 0.1
+    obs = np.zeros((2, 7), dtype=np.float32)
+    obs[:, 5] = 0.01
+    pol = SB3Policy(lay, ppo, lay, decision={"rule": "hazard", "value": np.array([0.09, 0.11])})
+    assert pol.act(obs).tolist() == [1, 0]
+    obs[1, 6] = 1.0  # already cut: stays cut
+    assert pol.act(obs).tolist() == [1, 1]
+
+
+def test_asymmetric_actor_ignores_privileged_features():
+    """The privileged critic's policy: the actor reads only the public columns, the critic all;
+    it saves and loads with PPO.load and runs in an environment without privileged features
+    (zeros are fed), while a plain model with privileged features is still refused there."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from agents.learned import AsymmetricActorCriticPolicy, SB3Policy
+    from pneugym.envs.sb3 import CutOffVecEnv
+
+    venv = CutOffVecEnv(num_envs=2, history=2, observe_params=True)
+    lay = venv.observation_layout()
+    n_pub = lay["size"] - len(lay["param_features"])
+    assert len(lay["param_features"]) == 3 and n_pub == 14
+    ppo = PPO(AsymmetricActorCriticPolicy, venv, n_steps=8, batch_size=16, device="cpu", seed=0,
+              policy_kwargs={"actor_inputs": n_pub, "net_arch": [16, 16]})
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(-1, 1, (5, lay["size"])).astype(np.float32)
+    other = obs.copy()
+    other[:, n_pub:] = rng.uniform(-3, 3, (5, 3))
+    with torch.no_grad():
+        for layer in ppo.policy.mlp_extractor.policy_net:  # make every input matter
+            if isinstance(layer, torch.nn.Linear):
+                layer.weight.normal_()
+        a, b = (ppo.policy.get_distribution(torch.as_tensor(x)).distribution.probs
+                for x in (obs, other))
+        va, vb = (ppo.policy.predict_values(torch.as_tensor(x)) for x in (obs, other))
+    assert torch.equal(a, b) and not torch.allclose(va, vb)
+    assert ppo.policy.mlp_extractor.policy_net[0].in_features == n_pub
+    assert ppo.policy.mlp_extractor.value_net[0].in_features == lay["size"]
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        ppo.save(f"{d}/m.zip")
+        loaded = PPO.load(f"{d}/m.zip", device="cpu")
+    assert type(loaded.policy).__name__ == "AsymmetricActorCriticPolicy"
+    assert loaded.policy.actor_inputs == n_pub
+    # in a public, history-1 environment: zeros for the privileged columns
+    env_lay = CutOffVectorEnv(num_envs=1).observation_layout()
+    pol = SB3Policy(env_lay, loaded, lay, decision={"rule": "hazard", "value": 0.5})
+    x = pol.model_obs(np.zeros((1, 7), dtype=np.float32))
+    assert x.shape == (1, lay["size"]) and not x[:, n_pub:].any()
+    # a model whose actor reads the privileged features still needs them
+    plain = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0)
+    with pytest.raises(LayoutMismatchError, match="privileged"):
+        SB3Policy(env_lay, plain, lay)
+    # and the public features must still match
+    with pytest.raises(LayoutMismatchError, match="time_limit_s"):
+        SB3Policy(CutOffVectorEnv(num_envs=1, time_limit_s=6.0).observation_layout(), loaded,
+                  lay)

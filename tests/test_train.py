@@ -116,3 +116,38 @@ def test_ensure_trained_reuses_finished_runs(runs, monkeypatch):
     with pytest.raises(RuntimeError, match="did not leave a finished model"):
         train.ensure_trained(["ppo"], root / "elsewhere", budget="quick")
     assert calls and calls[0][0] == "ppo" and calls[0][1]["budget"] == "quick"
+
+
+def test_privileged_critic_run_loads_without_privileged_features(tmp_path):
+    """privileged_critic: trained with observe_params, evaluated in evaluate.py's public history-1
+    environment; several decision rules are tuned together and the choice is recorded."""
+    import evaluate
+
+    d = tmp_path / "asym"
+    train.train("ppo", d, timesteps=512, seed=1, progress=False, overrides=SMALL["ppo"] + [
+        f"cache_dir={tmp_path / 'cache'}", "privileged_critic=true",
+        "decision.rules={quantile: [0.3, 0.6], hazard: [0.05, 0.5]}",
+        "decision.prefer_saving_within=0.01"])
+    run = json.loads((d / "run.json").read_text())
+    assert len(run["observation_layout"]["param_features"]) == 3
+    assert run["best"]["decision"]["rule"] in ("quantile", "hazard")
+    assert {r["rule"] for r in run["validation"][0]["grid"]} == {"quantile", "hazard"}
+    pol = load_policy(d, CutOffVectorEnv(num_envs=1))
+    assert type(pol.model.policy).__name__ == "AsymmetricActorCriticPolicy"
+    conds = [c for _, c in evaluate.suite_episodes("nominal", 1, evaluate.EVAL_SEED)]
+    out = evaluate.run_policy(pol, conds, {}, evaluate.EVAL_SEED)
+    assert len(out["objective"]) == 2 and np.all(np.isfinite(out["objective"]))
+    with pytest.raises(ValueError, match="actor-critic"):
+        train.train("dqn", tmp_path / "dqn", timesteps=64, seed=1, progress=False,
+                    overrides=SMALL["dqn"] + ["privileged_critic=true"])
+
+
+def test_choose_decision_prefers_saving_within_tolerance():
+    rows = [{"rule": "quantile", "value": 0.2, "return": -0.650, "stall_rate": 0.0, "saving": 0.60},
+            {"rule": "quantile", "value": 0.1, "return": -0.653, "stall_rate": 0.0, "saving": 0.63},
+            {"rule": "hazard", "value": 0.02, "return": -0.652, "stall_rate": 0.1, "saving": 0.70},
+            {"rule": "hazard", "value": 0.05, "return": -0.700, "stall_rate": 0.0, "saving": 0.75}]
+    assert train.choose_decision(rows)["value"] == 0.2
+    assert train.choose_decision(rows, 0.005)["value"] == 0.1  # the stalling one is not chosen
+    assert train.choose_decision(rows, 0.1)["value"] == 0.05
+    assert train.decision_grids({"rule": "quantile", "grid": [0.5]}) == {"quantile": [0.5]}
