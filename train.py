@@ -381,15 +381,22 @@ def decision_grids(decision: Mapping[str, Any]) -> dict[str, list[float]]:
     return {str(decision["rule"]): [float(x) for x in decision.get("grid", [0.5])]}
 
 
-def choose_decision(rows: Sequence[Mapping[str, Any]], prefer_saving_within: float = 0.0
-                    ) -> dict[str, Any]:
-    """The validation row to act by: the best mean return, or, with ``prefer_saving_within``
-    > 0, the row that saves most among those within that much of the best return and stalling
-    no more often (the return's near-ties are noise on 48 conditions; the saving is the aim)."""
-    top = max(rows, key=lambda r: r["return"])
+def choose_decision(rows: Sequence[Mapping[str, Any]], prefer_saving_within: float = 0.0,
+                    max_stall_rate: float = math.inf) -> dict[str, Any]:
+    """The validation row (``return``, ``saving``, ``stall_rate``) to act by: among the rows that
+    stall at most ``max_stall_rate`` (all, if none does), the best mean return; or, with
+    ``prefer_saving_within > 0``, the row that saves most among those within that much of the
+    best return and stalling no more often. The objective is flat near its optimum and its
+    near-ties are noise; the saving is the thesis's aim."""
+    if not rows:
+        raise ValueError("no validation rows to choose from")
+    if prefer_saving_within < 0:
+        raise ValueError(f"prefer_saving_within = {prefer_saving_within} must be >= 0")
+    ok = [r for r in rows if r["stall_rate"] <= max_stall_rate] or list(rows)
+    top = max(ok, key=lambda r: r["return"])
     if prefer_saving_within <= 0:
         return dict(top)
-    near = [r for r in rows if r["return"] >= top["return"] - prefer_saving_within
+    near = [r for r in ok if r["return"] >= top["return"] - prefer_saving_within
             and r["stall_rate"] <= top["stall_rate"]]
     return dict(max(near, key=lambda r: (r.get("saving", 0.0), r["return"])))
 
@@ -590,11 +597,11 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     sweep = esac.sweep_rule(pred, conds, grid, seed=int(val["seed"]))
     refs = validation_references(conds, {**env_cfg, "preset": cfg["preset"]}, int(val["seed"]),
                                  cache)
-    best = esac.choose_rule(sweep, float(cfg.get("max_stall_rate", 0.0)),
-                            float(cfg.get("prefer_saving_within", 0.0)))
+    best = choose_decision(sweep, float(cfg.get("prefer_saving_within", 0.0)),
+                           float(cfg.get("max_stall_rate", 0.0)))
     rule = {**esac.RULE_DEFAULTS, **{k: best[k] for k in keys}}
     for r in sweep:
-        r["oracle_fraction"] = oracle_fraction(r["return_mean"], refs)
+        r["oracle_fraction"] = oracle_fraction(r["return"], refs)
     atomic_write_json(out / "rule_sweep.json", {"grid": sweep, "chosen": best,
                                                 "references": refs})
     t_sweep = time.perf_counter() - t1
@@ -608,15 +615,15 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
                      "preset": cfg["preset"], "pneugym_sources": esac.source_hash()},
             "provenance": provenance()}
     esac.save(out / "model.pt", net, meta)
-    best_frac = oracle_fraction(best["return_mean"], refs)
+    best_frac = oracle_fraction(best["return"], refs)
     print(f"rule tuned on {len(conds)} validation conditions: {rule} -> return "
-          f"{best['return_mean']:.4f} (oracle fraction "
+          f"{best['return']:.4f} (oracle fraction "
           f"{best_frac if best_frac is None else round(best_frac, 3)}), stall "
           f"{best['stall_rate']:.3f}", flush=True)
     return {"model": "model.pt", "train_wall_s": time.perf_counter() - t0,
             "data_wall_s": t_data, "fit_wall_s": hist["fit_wall_s"], "sweep_wall_s": t_sweep,
             "accuracy": acc, "rule": rule, "validation_references": refs,
-            "best": {"return": best["return_mean"], "oracle_fraction": best_frac,
+            "best": {"return": best["return"], "oracle_fraction": best_frac,
                      "stall_rate": best["stall_rate"]},
             "fit": {k: v for k, v in hist.items() if k not in ("train", "val")},
             "loss_history": {"train": hist["train"], "val": hist["val"]},

@@ -29,7 +29,7 @@ position is within ``tolerance_m`` of the stroke end, the predicted time increas
 ``max_time_increase`` (the time demand), ``p_stick <= max_stick`` and, with ``lookahead``, no
 predicted later cut (``Δ`` in the training lags) scores a better objective. ``margin`` is the
 safety margin: the accepted predicted risk of an incomplete stroke. train.py tunes the rule on
-validation conditions (training seeds), :func:`choose_rule`.
+validation conditions (training seeds), ``train.choose_decision``.
 """
 from __future__ import annotations
 
@@ -715,25 +715,8 @@ def sweep_rule(predictor: ESACPredictor, conditions: Sequence[Any], grid: Iterab
     for k, g in enumerate(grid):
         s = slice(k * nc, (k + 1) * nc)
         res.append({**{kk: float(v) for kk, v in g.items()},
-                    "return_mean": float(np.mean(out["objective"][s])),
+                    "return": float(np.mean(out["objective"][s])),
                     "stall_rate": float(np.mean(out["stalled"][s])),
-                    "saving_mean": float(np.mean(out["saving_ratio"][s]))})
+                    "saving": float(np.mean(out["saving_ratio"][s]))})
     return res
 
-
-def choose_rule(sweep: Sequence[Mapping[str, Any]], max_stall_rate: float = 0.0,
-                prefer_saving_within: float = 0.0) -> Mapping[str, Any]:
-    """The rule of a :func:`sweep_rule` result to deploy: among the rules that stall at most
-    ``max_stall_rate`` (all rules if none does), the best mean return; or, with
-    ``prefer_saving_within > 0``, the rule that saves the most air among those within that much
-    of the best return. The objective is flat near its optimum (a few percent of stroke time
-    buy a few percent of air), so this breaks near-ties toward the thesis's aim: less air."""
-    if not sweep:
-        raise ValueError("empty rule sweep")
-    if prefer_saving_within < 0:
-        raise ValueError(f"prefer_saving_within = {prefer_saving_within} must be >= 0")
-    ok = [r for r in sweep if r["stall_rate"] <= max_stall_rate] or list(sweep)
-    best = max(r["return_mean"] for r in ok)
-    near = [r for r in ok if r["return_mean"] >= best - prefer_saving_within]
-    return max(near, key=lambda r: (r["saving_mean"], r["return_mean"])) \
-        if prefer_saving_within > 0 else max(ok, key=lambda r: r["return_mean"])

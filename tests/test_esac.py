@@ -168,19 +168,6 @@ def test_delay_input_predictor_shapes_and_samples():
     assert x0.shape == (3, 14) and list(ep0) == [0, 1, 2]
 
 
-def test_choose_rule_prefers_saving_only_among_near_best_returns():
-    sweep = [{"return_mean": -0.40, "saving_mean": 0.60, "stall_rate": 0.0},
-             {"return_mean": -0.405, "saving_mean": 0.66, "stall_rate": 0.0},
-             {"return_mean": -0.45, "saving_mean": 0.75, "stall_rate": 0.0},
-             {"return_mean": -0.30, "saving_mean": 0.80, "stall_rate": 0.1}]
-    assert esac.choose_rule(sweep)["saving_mean"] == 0.60          # best return, no stalls
-    assert esac.choose_rule(sweep, 0.2)["saving_mean"] == 0.80     # stalls allowed
-    assert esac.choose_rule(sweep, prefer_saving_within=0.01)["saving_mean"] == 0.66
-    assert esac.choose_rule(sweep, prefer_saving_within=0.1)["saving_mean"] == 0.75
-    with pytest.raises(ValueError, match="prefer_saving_within"):
-        esac.choose_rule(sweep, prefer_saving_within=-1)
-
-
 def test_save_load_roundtrip_and_refusal(tmp_path):
     pred = _predictor()
     meta = {"n_in": 14, "hidden": [8], "layout": pred.layout, "rule": {"margin": 0.07}}

@@ -150,4 +150,10 @@ def test_choose_decision_prefers_saving_within_tolerance():
     assert train.choose_decision(rows)["value"] == 0.2
     assert train.choose_decision(rows, 0.005)["value"] == 0.1  # the stalling one is not chosen
     assert train.choose_decision(rows, 0.1)["value"] == 0.05
+    # ESAC's use: rules that stall on validation are excluded first
+    assert train.choose_decision(rows, 0.0, max_stall_rate=0.0)["value"] == 0.2
+    assert train.choose_decision(rows[2:3] + rows[3:], 0.0, 0.0)["value"] == 0.05
+    assert train.choose_decision(rows[2:3], 0.0, 0.0)["value"] == 0.02  # none without: all
+    with pytest.raises(ValueError, match="prefer_saving_within"):
+        train.choose_decision(rows, -1.0)
     assert train.decision_grids({"rule": "quantile", "grid": [0.5]}) == {"quantile": [0.5]}
