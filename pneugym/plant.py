@@ -119,8 +119,11 @@ def stability_limits(params: RigParams) -> dict[str, float]:
       ``|ω| <= 2 c / dx`` for every flow speed ``|u| <= c`` (``c`` isothermal sound speed; tee
       volumes only lower it), so the SSP-RK3 bound on the imaginary axis gives ``√3 dx / (2 c)``;
     - ``orifice <name>``: the stiffest explicit orifice-volume pair (linearised orifice
-      conductance): exhaust, leaks, the joints of the lumped line, and the valve when the line
-      has a single cell (that cell takes the implicit port flow, the valve's is explicit);
+      conductance): exhaust, leaks, and the valve when the line has a single cell (that cell
+      takes the implicit port flow, the valve's is explicit);
+    - ``implicit orifice chain of the lumped line``: no stability limit (valve, joints and port
+      are solved together, :func:`pneugym.physics.system.implicit_chain`), but a robustness bound
+      ``h lambda <= CHAIN_H_LAMBDA`` for the chain's explicit first IMEX stage (see below);
     - ``line friction``, ``piston air spring``, ``piston viscous``, ``heat transfer``.
     """
     g, c, ln, v, e = params.gas, params.cylinder, params.line, params.valve, params.effects
