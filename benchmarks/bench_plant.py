@@ -439,7 +439,8 @@ def jacobian(plant, y, d, mode):
 
 def _implicit_jacobian(plant, y, d):
     """Jacobian of the IMEX substep's implicit part: the port flow (line cell n-1 -> driving
-    chamber) and, with more than one cell, the valve flow (supply -> cell 0, and the supply mass)."""
+    chamber), with more than one cell the valve flow (supply -> cell 0, and the supply mass),
+    and with a lumped line of more than one cell the joints between its cells."""
     n, b = plant.n_cells, plant._b
     P = plant.P
     RT = P[L.P_R] * P[L.P_T]
@@ -457,10 +458,18 @@ def _implicit_jacobian(plant, y, d):
         return flow_at(K.supply_pressure(P, d[L.D_T]), yy[0] * RT / P[L.NP], s * P[L.P_CDA_VALVE],
                        P[L.P_SQRT_T], P[L.P_SQRT_T], P, L.P_OC)
 
+    def joint(j):
+        def f(yy):
+            return flow_at(yy[j] * RT / P[L.NP + j], yy[j + 1] * RT / P[L.NP + j + 1],
+                           P[L.P_CDA_LINE], P[L.P_SQRT_T], P[L.P_SQRT_T], P, L.P_OC)
+        return f
+
     JI = np.zeros((y.size, y.size))
     parts = [(port, [n - 1, b + L.Y_MD], n - 1, b + L.Y_MD)]
     if n > 1:
         parts.append((valve, [0], None, 0))
+    if P[L.P_LINE_MODEL] != 0.0 and n > 1:
+        parts += [(joint(j), [j, j + 1], j, j + 1) for j in range(n - 1)]
     for f, cols, out_row, in_row in parts:
         f0 = f(y)
         for j in cols:

@@ -13,7 +13,7 @@ from pneugym.physics import layout as L
 from pneugym.physics import testbed
 from pneugym.physics.line import friction_factor, wall_friction
 from pneugym.physics.orifice import OC_CM_STAR, orifice_constants
-from pneugym.plant import pack, stability_limits
+from pneugym.plant import CHAIN_H_LAMBDA, RK3_REAL_LIMIT, pack, stability_limits
 
 CLOSED = np.zeros(6)  # both ends closed
 
@@ -205,7 +205,45 @@ def test_lumped_and_fd_lines_relax_to_the_same_uniform_pressure():
         y[:n] = p_init * vol / rt(prm)
         m0 = y[:n].sum()
         lim = stability_limits(prm)
-        dt = 0.5 * min(v for k, v in lim.items() if k == "line CFL" or "lumped line" in k)
+        # the testbed steps the lumped line explicitly: its explicit bound (SSP-RK3 on the
+        # chain's Gershgorin bound), not the plant's implicit-chain limit
+        dt = 0.5 * (lim["line CFL"] if model == "fd" else
+                    lim["implicit orifice chain of the lumped line"] * RK3_REAL_LIMIT / CHAIN_H_LAMBDA)
         t, p = testbed.line_run(y, P, CLOSED, dt, 1.5, 1000)
         assert y[:n].sum() == pytest.approx(m0, rel=1e-12)
         assert np.allclose(p[-1], 3e5, rtol=2e-3), model
+
+
+# ------------------------------------------------------------------------------------------
+# the plant's implicit orifice chain of the lumped line
+# ------------------------------------------------------------------------------------------
+def test_implicit_chain_solves_the_stage_equation_to_round_off():
+    """``system.implicit_chain`` at a stiff step (valve opening onto a line at ambient): every
+    flow equals the orifice law at the pressures it leaves behind, and the flows move mass
+    between neighbours only."""
+    from pneugym import Plant
+    from pneugym.physics import system as K
+    from pneugym.physics.orifice import mass_flow
+    prm = RigParams().with_(line={"model": "lumped", "n_cells": 5})
+    pl = Plant(prm)
+    P, n, b = pl.P, pl.n_cells, pl._b
+    z = pl.y.copy()
+    RT = P[L.P_R] * P[L.P_T]
+    vd = P[L.P_V0D]
+    kd = P[L.P_R] * z[b + L.Y_TD] / vd
+    hg = 0.01  # h lambda of the chain ~ 1000
+    ps, cda_v, cda_p, sT = P[L.P_PS], P[L.P_CDA_VALVE], P[L.P_CDA_PORT], P[L.P_SQRT_T]
+    qj = np.zeros(n - 1)
+    qv, qp = K.implicit_chain(z, P, n, b, hg, ps, cda_v, cda_p, kd, sT, 0.0, 0.0, qj,
+                              np.empty(n), np.empty(n - 1))
+    q = np.concatenate([[qv], qj, [qp]])
+    m = z[:n] + hg * (q[:-1] - q[1:])
+    assert np.all(m > 0.0)
+    p = m * RT / P[L.NP:]
+    pd = (z[b + L.Y_MD] + hg * qp) * kd
+    oc = P[L.P_OC:L.P_OC + 7]
+    law = [mass_flow(ps, p[0], cda_v, sT, sT, oc)]
+    law += [mass_flow(p[i], p[i + 1], P[L.P_CDA_LINE], sT, sT, oc) for i in range(n - 1)]
+    law += [mass_flow(p[-1], pd, cda_p, sT, sT, oc)]
+    assert np.allclose(q, law, rtol=1e-12, atol=1e-15 * abs(qv))
+    assert qv > 0 and np.all(np.diff(p) < 0)  # flow towards the chamber, pressures ordered

@@ -22,7 +22,7 @@ from .layout import (
     Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
 from .line import fd_continuity, fd_momentum, lumped_rhs
-from .orifice import flow_at, implicit_flow
+from .orifice import flow_at, flow_deriv_fwd, implicit_flow
 
 
 #: Implicit tableau of the IMEX substep (the explicit one is SSP-RK3: c = 0, 1, 1/2; weights
@@ -152,7 +152,129 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
     dy[n - 1] -= q_port
     dy[b + Y_MD] += q_port
     dy[b + Y_MIN] += q_imp
+    if P[P_LINE_MODEL] != 0.0 and n > 1:  # the lumped line's joint flows
+        for j in range(n - 1):
+            q = dy[n + j]
+            dy[j] -= q
+            dy[j + 1] += q
+            dy[n + j] = 0.0
     return q_in
+
+
+#: Newton iterations at most in :func:`implicit_chain`
+CHAIN_MAX_IT = 30
+#: :func:`implicit_chain` stops when its last Newton correction is at most this fraction of the
+#: largest flow of the chain: the convergence is quadratic, so the flows are then exact to
+#: round-off (the chain is cheap: a few cells)
+CHAIN_TOL = 1e-9
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _flow_deriv(pa, pb, cda, sTa, sTb, c, o):
+    """Signed flow a -> b and its partial derivatives ``(q, dq/dpa, dq/dpb)`` (either direction)."""
+    if pa >= pb:
+        q, da, db = flow_deriv_fwd(pa, pb, cda, sTa, c, o)
+        return q, da, db
+    q, db, da = flow_deriv_fwd(pb, pa, cda, sTb, c, o)
+    return -q, -da, -db
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def implicit_chain(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, qj, cp, dp):
+    """The implicit stage equation of the lumped line's whole orifice chain: supply -> valve ->
+    line cell 0 -> joint -> ... -> line cell n-1 -> port -> driving chamber.
+
+    The ``n + 1`` flows (row 0 the valve, rows 1..n-1 the joints ``qj[r - 1]`` between cells
+    r-1 and r, row n the port) solve ``q_r = flow_r(state + hg q)``: each at the pressures left
+    after every flow of the chain has moved ``hg q`` of mass out of its upstream and into its
+    downstream volume (the supply is a reservoir). Row r depends on the flows r-1, r, r+1 only:
+    Newton's method with the tridiagonal Jacobian solved by the Thomas algorithm. The Jacobian
+    ``1 + hg (f_a k_a - f_b k_b)`` on the diagonal, ``-hg f_a k_a`` and ``hg f_b k_b`` beside it
+    (``f_a >= 0 >= f_b`` the orifice law's pressure derivatives, ``k = dp/dm``) is strictly
+    row-diagonally dominant, so the elimination needs no pivoting. A step that would leave a
+    non-positive mass is halved. Converged when the correction is below ``CHAIN_TOL`` of the
+    largest flow.
+
+    ``z``: the stage state (cells ``z[0..n-1]``, driving-chamber mass ``z[b + Y_MD]``), not
+    modified; ``qv``, ``qp``, ``qj`` (length n-1, in place): the guesses, on return the flows;
+    ``cp`` (n), ``dp`` (n-1): scratch. Returns ``(qv, qp)``.
+    """
+    RT = P[P_R] * P[P_T]
+    sT = P[P_SQRT_T]
+    cda_l = P[P_CDA_LINE]
+    md0 = z[b + Y_MD]
+    for _ in range(CHAIN_MAX_IT):
+        # residuals, Jacobian rows and the Thomas forward sweep in one pass
+        # row 0: supply (reservoir) -> cell 0
+        q_next = qj[0] if n > 1 else qp
+        k_dn = RT / P[NP]
+        p_dn = k_dn * (z[0] + hg * (qv - q_next))
+        f, fa, fb = _flow_deriv(ps, p_dn, cda_v, sT, sT, P, P_OC)
+        diag = 1.0 - hg * fb * k_dn
+        c_r = hg * fb * k_dn
+        cp[0] = c_r / diag
+        d0 = (qv - f) / diag
+        d_prev = d0
+        scale = abs(qv)
+        for r in range(1, n):
+            q_r = qj[r - 1]
+            q_next = qj[r] if r < n - 1 else qp
+            k_up = k_dn
+            p_up = p_dn
+            k_dn = RT / P[NP + r]
+            p_dn = k_dn * (z[r] + hg * (q_r - q_next))
+            f, fa, fb = _flow_deriv(p_up, p_dn, cda_l, sT, sT, P, P_OC)
+            a_r = -hg * fa * k_up
+            diag = 1.0 + hg * (fa * k_up - fb * k_dn) - a_r * cp[r - 1]
+            cp[r] = hg * fb * k_dn / diag
+            d_prev = (q_r - f - a_r * d_prev) / diag
+            dp[r - 1] = d_prev
+            scale = max(scale, abs(q_r))
+        # row n: cell n-1 -> driving chamber
+        k_up = k_dn
+        p_up = p_dn
+        p_d = kd * (md0 + hg * qp)
+        f, fa, fb = _flow_deriv(p_up, p_d, cda_p, sT, sTd, P, P_OC)
+        a_r = -hg * fa * k_up
+        diag = 1.0 + hg * (fa * k_up - fb * kd) - a_r * cp[n - 1]
+        dq_n = (qp - f - a_r * d_prev) / diag
+        scale = max(scale, abs(qp))
+        # back substitution: the corrections, joints into dp
+        dmax = abs(dq_n)
+        dq_next = dq_n
+        for r in range(n - 1, 0, -1):
+            dq_next = dp[r - 1] - cp[r] * dq_next
+            dp[r - 1] = dq_next
+            dmax = max(dmax, abs(dq_next))
+        dq_0 = d0 - cp[0] * dq_next
+        dmax = max(dmax, abs(dq_0))
+        # damping: a volume with a positive mass keeps one
+        lam = 1.0
+        for _h in range(60):
+            ok = md0 + hg * (qp - lam * dq_n) > 0.0 or md0 + hg * qp <= 0.0
+            q_in = qv - lam * dq_0
+            q_in0 = qv
+            for r in range(n):
+                if r < n - 1:
+                    q_out = qj[r] - lam * dp[r]
+                    q_out0 = qj[r]
+                else:
+                    q_out = qp - lam * dq_n
+                    q_out0 = qp
+                if z[r] + hg * (q_in - q_out) <= 0.0 < z[r] + hg * (q_in0 - q_out0):
+                    ok = False
+                q_in = q_out
+                q_in0 = q_out0
+            if ok:
+                break
+            lam *= 0.5
+        qv -= lam * dq_0
+        qp -= lam * dq_n
+        for r in range(n - 1):
+            qj[r] -= lam * dp[r]
+        if dmax <= CHAIN_TOL * scale:
+            break
+    return qv, qp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -195,7 +317,25 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     cda_v = s * P[P_CDA_VALVE]
     cda_p = fd * P[P_CDA_PORT]
     q_imp = 0.0  # the implicit valve flow (0 when the valve flow is explicit)
-    if hg > 0.0:
+    chain = P[P_LINE_MODEL] != 0.0 and n > 1  # lumped line: the whole orifice chain is implicit
+    if hg > 0.0 and chain:
+        # valve, joints (guesses and result in dy[n..b-1]) and port together; p and the unused
+        # face slots y[n..b-1] are the solver's scratch
+        kd = R * Td / vd
+        ps = supply_pressure(P, tau) if s > 0.0 else P[P_PA]
+        q_in, q_port = implicit_chain(y, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv0, qp0,
+                                      dy[n:b], p, y[n:b])
+        y[0] += hg * q_in
+        for j in range(n - 1):
+            y[j] -= hg * dy[n + j]
+            y[j + 1] += hg * dy[n + j]
+        y[n - 1] -= hg * q_port
+        y[b + Y_MD] += hg * q_port
+        for i in range(n):
+            p[i] = y[i] * RT / P[NP + i]
+        pd = y[b + Y_MD] * R * Td / vd
+        q_imp = q_in
+    elif hg > 0.0:
         # port: implicit (line cell n-1 <-> driving chamber)
         kc = RT / P[NP + n - 1]
         kd = R * Td / vd
@@ -222,6 +362,9 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
             q_in = flow_at(supply_pressure(P, tau), p[0], cda_v, sT, sT, P, P_OC)
             if n > 1:
                 q_imp = q_in
+        if chain:  # the joints' flows, as the implicit part's rates
+            for j in range(n - 1):
+                dy[n + j] = flow_at(p[j], p[j + 1], P[P_CDA_LINE], sT, sT, P, P_OC)
 
     # explicit part
     q_ex = 0.0
@@ -235,7 +378,10 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
         fd_continuity(y, 0.0, 0.0, dy, n)
         fd_momentum(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV],
                     dy, n)
-    else:
+    elif chain:  # every exchange of the cells is implicit; dy[n..b-1] holds the joints' flows
+        for i in range(n):
+            dy[i] = 0.0
+    else:  # one lumped cell
         lumped_rhs(p, 0.0, 0.0, P[P_CDA_LINE], sT, P, P_OC, dy, n)
         for j in range(n, b):
             dy[j] = 0.0
@@ -318,15 +464,29 @@ def substep(y, P, d, h, k, y1, y2, p):
     z[0] += c * qv1
     z[n - 1] -= c * qp1
     z[b + Y_MD] += c * qp1
+    chain = P[P_LINE_MODEL] != 0.0 and n > 1
+    if chain:  # the lumped line's joints: implicit, their flows in the face slots of the rates
+        for j in range(n - 1):
+            q = c * y1[n + j]
+            z[j] -= q
+            z[j + 1] += q
+            k[n + j] = y1[n + j]  # the guess of stage 2
     s, se = valve_opening(d, P, t + h)
     qv2, qp2, _ = stage_rhs(t + h, s, se, z, P, mode, k, p, h * IMEX_A22, qv1, qp1)
     # stage 3 (c = 1/2): y + h/4 (k1 + k2) + h (a31 q1 + a32 q2 + a33 q3)
+    c = h * IMEX_A31
+    c2 = h * IMEX_A32
+    if chain:  # the joints' implicit masses of stage 3 (p: scratch until stage_rhs)
+        for j in range(n - 1):
+            p[j] = c * y1[n + j] + c2 * k[n + j]
     for i in range(ny):
         y1[i] += k[i]
         z[i] = y[i] + 0.25 * h * y1[i]
-    c = h * IMEX_A31
-    c2 = h * IMEX_A32
     z[0] += c * qv1 + c2 * qv2
+    if chain:  # (the guess of stage 3 is stage 2's flows, already in k)
+        for j in range(n - 1):
+            z[j] -= p[j]
+            z[j + 1] += p[j]
     z[n - 1] -= c * qp1 + c2 * qp2
     z[b + Y_MD] += c * qp1 + c2 * qp2
     s, se = valve_opening(d, P, t + 0.5 * h)
@@ -341,6 +501,12 @@ def substep(y, P, d, h, k, y1, y2, p):
     y[b + Y_MIN] += qv
     y[n - 1] -= qp
     y[b + Y_MD] += qp
+    if chain:  # the face slots took h (q1 + q2 + 4 q3) / 6 of each joint: move it, reset them
+        for j in range(n - 1):
+            q = y[n + j]
+            y[j] -= q
+            y[j + 1] += q
+            y[n + j] = 0.0
 
     # valve: advance the ramp, record a completed closing, pop due commands
     t_new = t + h
