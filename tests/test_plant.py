@@ -721,10 +721,12 @@ def test_lumped_line_converges_at_second_order():
     """Smooth window (valve open, piston moving, before arrival): the state error under dt
     refinement falls as dt^2 (from dt/2 on: at the default substep the chain's fastest modes,
     h lambda ~ 36, are in the L-stable implicit part's stiff regime, where the order is lower;
-    measured 1.4 from dt to dt/2, then 2.25, 2.05)."""
+    measured 1.4 from dt to dt/2, then 2.25, 2.05). The window 0.45-0.55 s: on the recalibrated
+    rig an earlier one (0.35-0.55 s) crosses a kink of the model (the orifice law's linear zone
+    or the stick dead band), where any step's order drops to about 1."""
     rig = _lumped(2.5)
     pl = Plant(rig)
-    pl.advance(0.35, 1)
+    pl.advance(0.45, 1)
     assert pl.mode == MODE_MOVING and pl.valve_opening == (1.0, 1.0)
     y0, d0 = pl.snapshot()
     dt0 = pl.dt_s
@@ -732,7 +734,7 @@ def test_lumped_line_converges_at_second_order():
     def final(dt):
         pl.restore((y0, d0))
         pl.P[L.P_DT] = dt
-        pl.advance(0.2)
+        pl.advance(0.1)
         assert pl.mode == MODE_MOVING and pl.arrival_time_s is None
         return np.array([pl.position_m, pl.p_drive_pa, pl.p_exhaust_pa, *pl.line_pressures_pa])
 
