@@ -1232,6 +1232,15 @@ def bench_profile(reps, quick):
 # ------------------------------------------------------------------------------------------
 # report
 # ------------------------------------------------------------------------------------------
+def _ratio_cell(ea):
+    """A table cell for an :func:`_equal_accuracy` result: the ratio, ``(<=)`` when it is taken at
+    the loosest rtol (every tested one more accurate), ``n/a`` when none is as accurate."""
+    ratio = (ea or {}).get("ratio")
+    if ratio is None:
+        return "n/a"
+    return g(ratio, 4) + ("" if ea.get("how", "").startswith("log-log") else " (<=)")
+
+
 def report(R):
     out = []
     if "rtf" in R:
@@ -1392,11 +1401,7 @@ def report(R):
         for i, prow in enumerate(sc["plant_dt_study"]):
             row = [f"dt/{prow['dt_divisor']}", g(prow["dt_s"] * 1e6, 4), prow["substeps"],
                    g(prow["median_s"] * 1e3, 4), g(prow["errors"]["combined"], 3)]
-            for m, s in sc["solve_ivp"].items():
-                ea = s["equal_accuracy"][i] or {}
-                ratio = ea.get("ratio")
-                tag = "" if ea.get("how", "").startswith("log-log") else (" (<=)" if ratio is not None else "")
-                row.append((g(ratio, 4) + tag) if ratio is not None else "n/a")
+            row += [_ratio_cell(s["equal_accuracy"][i]) for s in sc["solve_ivp"].values()]
             rows.append(row)
         out.append(fmt_table(["plant", "dt[us]", "substeps", "wall [ms]", "error"]
                              + [f"{m} time ratio @ equal err" for m in sc["solve_ivp"]], rows,
@@ -1439,11 +1444,7 @@ def report(R):
                 row = [f"dt/{prow['dt_divisor']}", g(prow["dt_s"] * 1e6, 4), prow["substeps_approx"],
                        g(prow["median_s"] * 1e3, 4), g(e.get("arrival_time"), 3), g(e["energy_wasted"], 3),
                        g(e["position"], 3), g(e["combined"], 3)]
-                for m, s in c["solve_ivp"].items():
-                    ea = s["equal_accuracy"][i] or {}
-                    ratio = ea.get("ratio")
-                    tag = "" if ea.get("how", "").startswith("log-log") else (" (<=)" if ratio is not None else "")
-                    row.append((g(ratio, 4) + tag) if ratio is not None else "n/a")
+                row += [_ratio_cell(s["equal_accuracy"][i]) for s in c["solve_ivp"].values()]
                 rows.append(row)
             out.append(fmt_table(["plant", "dt[us]", "substeps", "wall [ms]", "err arrival", "err E", "err x",
                                   "error"] + [f"{m} ratio @ equal err" for m in c["solve_ivp"]], rows,

@@ -79,20 +79,29 @@ def test_learned_policy_sees_its_own_layout_in_a_history1_env():
     np.testing.assert_array_equal(pol.seen[2][:, 7:14], pol.seen[1][:, 14:])  # shifted
 
 
-def test_sb3_decision_rules():
-    """quantile: cut once 1 - prod(1 - p_cut) reaches the value; advantage: Q(cut) - Q(keep)."""
+def _ppo_cutting_with(p_cut: float):
+    """A PPO model whose policy cuts with probability ``p_cut`` in every state, its env, layout."""
     import torch
-    from stable_baselines3 import DQN, PPO
+    from stable_baselines3 import PPO
 
-    from agents.learned import SB3Policy
     from pneugym.envs.sb3 import CutOffVecEnv
 
     venv = CutOffVecEnv(num_envs=2)
-    lay = venv.observation_layout()
     ppo = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0)
     with torch.no_grad():
         ppo.policy.action_net.weight.zero_()
-        ppo.policy.action_net.bias[:] = torch.tensor([0.0, float(np.log(0.1 / 0.9))])  # p = 0.1
+        ppo.policy.action_net.bias[:] = torch.tensor([0.0, float(np.log(p_cut / (1 - p_cut)))])
+    return venv, venv.observation_layout(), ppo
+
+
+def test_sb3_decision_rules():
+    """quantile: cut once 1 - prod(1 - p_cut) reaches the value; advantage: Q(cut) - Q(keep)."""
+    import torch
+    from stable_baselines3 import DQN
+
+    from agents.learned import SB3Policy
+
+    venv, lay, ppo = _ppo_cutting_with(0.1)
     pol = SB3Policy(lay, ppo, lay, decision={"rule": "quantile", "value": 0.5})
     obs = np.zeros((1, 7), dtype=np.float32)
     obs[0, 5] = 0.01
@@ -115,18 +124,9 @@ def test_sb3_decision_rules():
 
 def test_sb3_hazard_rule():
     """hazard: cut at the first step whose own p_cut reaches the value (latched after)."""
-    import torch
-    from stable_baselines3 import PPO
-
     from agents.learned import SB3Policy
-    from pneugym.envs.sb3 import CutOffVecEnv
 
-    venv = CutOffVecEnv(num_envs=2)
-    lay = venv.observation_layout()
-    ppo = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0)
-    with torch.no_grad():
-        ppo.policy.action_net.weight.zero_()
-        ppo.policy.action_net.bias[:] = torch.tensor([0.0, float(np.log(0.1 / 0.9))])  # p = 0.1
+    _, lay, ppo = _ppo_cutting_with(0.1)
     obs = np.zeros((2, 7), dtype=np.float32)
     obs[:, 5] = 0.01
     pol = SB3Policy(lay, ppo, lay, decision={"rule": "hazard", "value": np.array([0.09, 0.11])})
