@@ -3,6 +3,7 @@
     python evaluate.py       # baselines + trained ESAC, PPO, DQN (trained on demand), both suites
     python evaluate.py --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
         --suite robustness --episodes 3 --seed 1000000 --out results
+    python evaluate.py --policies gaslaw esac=runs/esac esac10=runs/esac:max_time_increase=0.1
 
 Suites (sensor noise 0.03 mm / 400 Pa in every episode):
 - ``nominal``: the thesis conditions, 1.5 and 2.5 bar gauge with 10 kg;
@@ -166,10 +167,36 @@ def resolve_learned(policies: Sequence[str], runs: str, budget: str) -> list[str
     return [f"{p}={paths[p]}" if p in paths else p for p in policies]
 
 
+def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:
+    """``NAME``, or ``NAME=PATH[:key=value,...]`` of a saved model with its decision overridden:
+    ESAC rule parameters (``esac10=runs/esac:max_time_increase=0.1``), or an SB3 model's
+    ``rule`` and ``value`` (``ppo3=runs/ppo:rule=quantile,value=0.3``)."""
+    if "=" not in spec:
+        return spec, None, {}
+    name, path = spec.split("=", 1)
+    over: dict[str, Any] = {}
+    head, sep, tail = path.rpartition(":")
+    if sep and "=" in tail:
+        path = head
+        for item in tail.split(","):
+            key, eq, val = item.partition("=")
+            if not eq or not key:
+                raise SystemExit(f"{spec!r}: overrides are key=value pairs separated by commas")
+            try:
+                over[key] = float(val)
+            except ValueError:
+                over[key] = val
+    if {"rule", "value"} & set(over):
+        if set(over) - {"rule", "value"}:
+            raise SystemExit(f"{spec!r}: an SB3 decision override takes rule and value only")
+        over = {"decision": over}
+    return name, path, over
+
+
 def _policy(spec: str, env, env_config: dict) -> tuple[str, Policy]:
-    if "=" in spec:
-        name, path = spec.split("=", 1)
-        return name, load_policy(path, env)
+    name, path, over = parse_spec(spec)
+    if path is not None:
+        return name, load_policy(path, env, **over)
     if spec not in BASELINES:
         raise SystemExit(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, learned "
                          f"ones {list(LEARNED)}, saved models are given as NAME=PATH")

@@ -566,9 +566,11 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     t0 = time.perf_counter()
     print(f"rollouts: {n_train} for training, {test['episodes']} held out (cached in {cache})",
           flush=True)
-    data = esac.rollouts(cache, n_train, seed, history, cfg["preset"], progress=progress)
-    held = esac.rollouts(cache, int(test["episodes"]), int(test["seed"]), history, cfg["preset"],
+    lags = tuple(int(k) for k in cfg.get("lags", esac.LAGS))
+    data = esac.rollouts(cache, n_train, seed, history, cfg["preset"], lags=lags,
                          progress=progress)
+    held = esac.rollouts(cache, int(test["episodes"]), int(test["seed"]), history, cfg["preset"],
+                         lags=lags, progress=progress)
     t_data = time.perf_counter() - t0
     stroke = float(layout["features"][0]["scale"])
     fit = cfg["fit"]

@@ -54,8 +54,9 @@ CLASS_HEADS = ("complete", "stick")
 REG_HEADS = ("final_position", "log_time_ratio", "conventional_time_s", "wasted_fraction",
              "energy_conventional_j")
 GENERATOR_VERSION = 3  # bump when generate_rollouts changes what it records
-#: control periods before the cut at which an observation is also recorded (Δ = lag x period)
-LAGS = (0, 2, 4, 8, 12, 16, 24, 32, 48, 64)
+#: control periods before the cut at which an observation is also recorded (Δ = lag x period):
+#: dense near the cut, up to 1.28 s, so that the lookahead sees the whole rest of a slow stroke
+LAGS = (0, 2, 4, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -474,6 +475,8 @@ def _delay_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], j: int
     """Errors of the predictions made ``lag_s[j]`` before the cut (lookahead rule's inputs)."""
     ok = ~np.isnan(data["obs_lag"][:, j, 0])
     delay = float(data["lag_s"][j])
+    if not ok.any():  # no cut came this long after the episode began
+        return {"delay_s": delay, "samples": 0}
     p = pred(data["obs_lag"][ok, j], delay)
     comp = data["completed"][ok].astype(bool)
     wf = data["energy_wasted_j"][ok] / data["energy_conventional_j"][ok]
@@ -687,6 +690,10 @@ def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
 def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) -> ESACPolicy:
     """The ESAC controller saved at ``path`` for an environment of ``env_layout``, with the saved
     (tuned) rule unless overridden by ``rule``."""
+    unknown = sorted(set(rule) - set(RULE_DEFAULTS) - {"time_demand_s"})
+    if unknown:
+        raise ValueError(f"unknown ESAC rule parameter(s) {unknown}; choose from "
+                         f"{sorted(RULE_DEFAULTS) + ['time_demand_s']}")
     pred, meta = load(path)
     saved = {k: v for k, v in meta.get("rule", {}).items() if k in RULE_DEFAULTS}
     params = {**RULE_DEFAULTS, **saved, **rule}

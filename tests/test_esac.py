@@ -177,6 +177,10 @@ def test_save_load_roundtrip_and_refusal(tmp_path):
     np.testing.assert_array_equal(pred.raw(x), pred2.raw(x))
     pol = esac.load_policy(tmp_path / "m.pt", _layout(1))  # stacks its history of 2 itself
     assert pol.rule()["margin"] == 0.07
+    over = esac.load_policy(tmp_path / "m.pt", _layout(1), max_time_increase=0.1)
+    assert over.rule()["max_time_increase"] == 0.1 and over.rule()["margin"] == 0.07
+    with pytest.raises(ValueError, match="unknown ESAC rule parameter.*'marjin'"):
+        esac.load_policy(tmp_path / "m.pt", _layout(1), marjin=0.1)
     env = CutOffVectorEnv(num_envs=1, autoreset=False)
     out = run_first_episodes(env, pol, [Conditions()], 1_000_000)
     assert out["completed"][0] or out["stalled"][0] or out["objective"][0] < 0

@@ -112,3 +112,16 @@ def test_unknown_policy_and_bad_path_are_refused(tmp_path):
     bad.write_text("not a zip")
     with pytest.raises(ValueError, match="not a stable-baselines3 model"):
         ev.main(["--policies", f"x={bad}", "--suite", "nominal", "--out", str(tmp_path)])
+
+
+def test_policy_specs_with_decision_overrides():
+    assert ev.parse_spec("gaslaw") == ("gaslaw", None, {})
+    assert ev.parse_spec("esac=runs/esac") == ("esac", "runs/esac", {})
+    assert ev.parse_spec("e10=runs/esac:max_time_increase=0.1,lookahead=1") == (
+        "e10", "runs/esac", {"max_time_increase": 0.1, "lookahead": 1.0})
+    assert ev.parse_spec("p=runs/ppo/model.zip:rule=quantile,value=0.3") == (
+        "p", "runs/ppo/model.zip", {"decision": {"rule": "quantile", "value": 0.3}})
+    with pytest.raises(SystemExit, match="rule and value only"):
+        ev.parse_spec("p=runs/ppo:rule=quantile,margin=0.1")
+    with pytest.raises(SystemExit, match="key=value"):
+        ev.parse_spec("p=runs/ppo:margin=0.1,oops")
