@@ -93,6 +93,8 @@ def test_configs_and_refusals(tmp_path):
     for algo in train.ALGOS:
         d, q = train.load_config(algo), train.load_config(algo, "quick")
         assert q["timesteps"] < d["timesteps"]
+    # PPO's checkpoint and decision choice needs a large validation set (144 chose by noise)
+    assert train.load_config("ppo")["validation"]["episodes"] >= 1024
     cfg = train.load_config("ppo", overrides=["algo.learning_rate=1e-4", "env.history=8"])
     assert cfg["algo"]["learning_rate"] == 1e-4 and cfg["env"]["history"] == 8
     with pytest.raises(ValueError, match="no budget"):
