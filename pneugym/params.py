@@ -10,6 +10,7 @@ Defaults marked *calibrated* are not given by the thesis; they were fitted once 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 from dataclasses import dataclass, field, fields, replace
@@ -17,6 +18,12 @@ from typing import Any, Mapping
 
 #: Thesis Fig. 3.6: main-valve switching delay [s] against supply gauge pressure [Pa].
 THESIS_VALVE_DELAY = ((150_000.0, 0.215), (250_000.0, 0.185))
+
+
+def did_you_mean(name: Any, known: Any) -> str:
+    """`` (did you mean 'x'?)`` for the known name nearest to ``name``, or ``""``."""
+    m = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" (did you mean {m[0]!r}?)" if m else ""
 
 
 def _check(obj: Any, name: str, ok: bool, what: str) -> None:
@@ -27,15 +34,29 @@ def _check(obj: Any, name: str, ok: bool, what: str) -> None:
 
 
 def _finite(obj: Any) -> None:
-    """Every float field must be a finite number (no NaN, no inf)."""
+    """Every number field must be a finite number (no NaN, no inf, no ``None`` unless the field
+    allows it, no strings)."""
     for f in fields(obj):
         v = getattr(obj, f.name)
-        if v is None or dataclasses.is_dataclass(v) or isinstance(v, (tuple, list, Mapping)):
+        if v is None:
+            if "None" in str(f.type):
+                continue
+            want = "a string" if "str" in str(f.type) else "a finite number"
+            raise ValueError(f"{type(obj).__name__}.{f.name} = None is invalid: must be {want}")
+        if dataclasses.is_dataclass(v) or isinstance(v, (tuple, list, Mapping)):
             continue
         if isinstance(v, str) and "str" in str(f.type):
             continue
         if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
             raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a finite number")
+
+
+def _plausible(obj: Any, name: str, hi: float, hint: str) -> None:
+    """Refuse a value above ``hi``, which no real rig has: ``hint`` names the likely unit slip."""
+    v = getattr(obj, name)
+    if v > hi:
+        raise ValueError(f"{type(obj).__name__}.{name} = {v!r} is not plausible (at most {hi:g}): "
+                         f"{hint}")
 
 
 def _positive(obj: Any, *names: str) -> None:
@@ -63,6 +84,10 @@ class GasParams:
         _positive(self, "gas_constant_j_per_kg_k", "ambient_temperature_k", "ambient_pressure_pa",
                   "viscosity_pa_s")
         _check(self, "gamma", 1.0 < self.gamma < 2.0, "in (1, 2)")
+        _check(self, "ambient_pressure_pa", 1e4 <= self.ambient_pressure_pa <= 2e5,
+               "in [1e4, 2e5] Pa absolute (bar given as Pa? 1 bar = 1e5 Pa)")
+        _check(self, "ambient_temperature_k", 150.0 <= self.ambient_temperature_k <= 600.0,
+               "in [150, 600] K (°C given as K? 20 °C = 293.15 K)")
 
     @property
     def sound_speed_isothermal_m_s(self) -> float:
@@ -94,6 +119,11 @@ class CylinderParams:
                f"< half the stroke ({0.5 * self.stroke_m})")
         _check(self, "cushion_factor_drive", self.cushion_factor_drive <= 1.0, "in (0, 1]")
         _check(self, "cushion_factor_exhaust", self.cushion_factor_exhaust <= 1.0, "in (0, 1]")
+        _plausible(self, "bore_m", 1.0, "mm given as m? (a 125 mm bore is 0.125 m)")
+        _plausible(self, "stroke_m", 10.0, "mm given as m? (a 180 mm stroke is 0.18 m)")
+        _plausible(self, "dead_volume_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
+        _plausible(self, "port_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
+        _plausible(self, "moving_mass_extra_kg", 1e4, "grams given as kg?")
 
     @property
     def piston_area_m2(self) -> float:
@@ -125,7 +155,14 @@ class LineParams:
         object.__setattr__(self, "n_cells", int(self.n_cells))
         _check(self, "model", self.model in ("fd", "lumped"), "'fd' or 'lumped'")
         _check(self, "artificial_viscosity", 0.0 <= self.artificial_viscosity <= 10.0, "in [0, 10]")
-        object.__setattr__(self, "tee_volumes", tuple((float(p), float(v)) for p, v in self.tee_volumes))
+        _plausible(self, "length_m", 100.0, "mm given as m?")
+        _plausible(self, "diameter_m", 0.1, "mm given as m? (a 5 mm tube is 0.005 m)")
+        try:
+            tees = tuple((float(p), float(v)) for p, v in self.tee_volumes)
+        except (TypeError, ValueError):
+            raise ValueError(f"LineParams.tee_volumes = {self.tee_volumes!r} is invalid: must be "
+                             f"pairs (position_m, volume_m3)") from None
+        object.__setattr__(self, "tee_volumes", tees)
         for i, (pos, vol) in enumerate(self.tee_volumes):
             if not (math.isfinite(pos) and 0.0 <= pos <= self.length_m):
                 raise ValueError(f"LineParams.tee_volumes[{i}] position {pos!r} must be in [0, length_m]")
@@ -163,7 +200,9 @@ class ValveParams:
         _positive(self, "area_m2", "exhaust_area_m2", "ramp_s")
         _check(self, "discharge_coefficient", 0.0 < self.discharge_coefficient <= 1.0, "in (0, 1]")
         if self.delay_s is not None:
-            _check(self, "delay_s", 0.0 <= self.delay_s <= 5.0, "None or in [0, 5] s")
+            _check(self, "delay_s", 0.0 <= self.delay_s <= 5.0, "None or in [0, 5] s (ms given as s?)")
+        _plausible(self, "area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
+        _plausible(self, "exhaust_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _check(self, "flow_model", self.flow_model in ("thesis", "iso6358"), "'thesis' or 'iso6358'")
         _check(self, "iso_b", 0.0 <= self.iso_b < 1.0, "in [0, 1)")
         _check(self, "linear_ratio", 1e-4 <= self.linear_ratio <= 0.2, "in [1e-4, 0.2]")
@@ -256,6 +295,21 @@ class SolverParams:
         _positive(self, "min_dt_s")
 
 
+#: Lowest plausible supply [Pa gauge] (0.1 bar): below it the value is almost surely bar given as Pa.
+MIN_SUPPLY_GAUGE_PA = 1e4
+_GROUPS = {"gas": GasParams, "cylinder": CylinderParams, "line": LineParams, "valve": ValveParams,
+           "friction": FrictionParams, "effects": EffectParams, "solver": SolverParams}
+
+
+def _groups(rig: Any) -> None:
+    """Each group of a :class:`RigParams` must be its dataclass (not a number, dict or None)."""
+    for name, cls in _GROUPS.items():
+        v = getattr(rig, name)
+        if not isinstance(v, cls):
+            raise ValueError(f"RigParams.{name} = {v!r} is invalid: must be a {cls.__name__} "
+                             f"(or, in with_/from_dict, a dict of its fields)")
+
+
 @dataclass(frozen=True)
 class RigParams:
     """The whole rig and operating point; the default is the thesis rig at 2.5 bar, 10 kg."""
@@ -271,10 +325,15 @@ class RigParams:
     solver: SolverParams = field(default_factory=SolverParams)
 
     def __post_init__(self) -> None:
+        _groups(self)
         _finite(self)
         _check(self, "supply_pressure_gauge_pa", 0.0 < self.supply_pressure_gauge_pa <= 1.9e6,
                "in (0, 1.9e6] Pa gauge (the supply must be above ambient)")
+        _check(self, "supply_pressure_gauge_pa", self.supply_pressure_gauge_pa >= MIN_SUPPLY_GAUGE_PA,
+               f">= {MIN_SUPPLY_GAUGE_PA:g} Pa gauge (bar given as Pa? "
+               f"{self.supply_pressure_gauge_pa:g} bar = {self.supply_pressure_gauge_pa * 1e5:g} Pa)")
         _nonneg(self, "load_mass_kg")
+        _plausible(self, "load_mass_kg", 1e4, "grams given as kg?")
 
     # -- derived ---------------------------------------------------------------------------
     @property
@@ -286,24 +345,35 @@ class RigParams:
     def moving_mass_kg(self) -> float:
         return self.load_mass_kg + self.cylinder.moving_mass_extra_kg
 
+    def cannot_move(self) -> str | None:
+        """Why the supply can never move the piston (its force at full supply does not beat the
+        static friction), or None."""
+        force = self.supply_pressure_gauge_pa * self.cylinder.piston_area_m2
+        if force > self.friction.static_n:
+            return None
+        return (f"the supply ({self.supply_pressure_gauge_pa:g} Pa gauge) pushes the piston with "
+                f"at most {force:.4g} N, not more than the static friction "
+                f"FrictionParams.static_n = {self.friction.static_n:g} N: the piston can never "
+                f"move (supply in bar given as Pa, a bore in mm given as m, or friction too high?)")
+
     @property
     def valve_delay_s(self) -> float:
         return self.valve.delay_for(self.supply_pressure_gauge_pa)
 
     # -- construction helpers --------------------------------------------------------------
     def with_(self, **changes: Any) -> "RigParams":
-        """Copy with changes; nested groups take dicts, e.g. ``with_(friction={"static_n": 300})``."""
+        """Copy with changes; nested groups take dicts, e.g. ``with_(friction={"static_n": 300})``.
+        Unknown names are refused with the nearest known one."""
         kw: dict[str, Any] = {}
+        names = [f.name for f in fields(self)]
         for k, v in changes.items():
-            if k not in {f.name for f in fields(self)}:
-                raise ValueError(f"RigParams has no field {k!r}")
-            cur = getattr(self, k)
-            if dataclasses.is_dataclass(cur) and isinstance(v, Mapping):
-                names = {f.name for f in fields(cur)}
-                unknown = set(v) - names
-                if unknown:
-                    raise ValueError(f"{type(cur).__name__} has no field(s) {sorted(unknown)}")
-                kw[k] = replace(cur, **dict(v))
+            if k not in names:
+                raise ValueError(f"RigParams has no field {k!r}{did_you_mean(k, names)}; "
+                                 f"fields: {names}")
+            if k in _GROUPS:
+                kw[k] = _group_value(getattr(self, k), k, v)
+            elif dataclasses.is_dataclass(v) or isinstance(v, Mapping):
+                raise ValueError(f"RigParams.{k} = {v!r} is invalid: must be a finite number")
             else:
                 kw[k] = v
         return replace(self, **kw)
@@ -313,7 +383,9 @@ class RigParams:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RigParams":
-        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError``."""
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming the nearest."""
+        if not isinstance(d, Mapping) or not all(isinstance(k, str) for k in d):
+            raise ValueError(f"RigParams.from_dict needs a mapping of field names, got {d!r}")
         base = cls()
         return base.with_(**{k: (dict(v) if isinstance(v, Mapping) else v) for k, v in d.items()})
 
@@ -374,6 +446,23 @@ class RigParams:
             "friction": {"static_n": f.static_n, "coulomb_n": f.coulomb_n,
                          "viscous_n_s_per_m": f.viscous_n_s_per_m},
         }
+
+
+def _group_value(cur: Any, name: str, v: Any) -> Any:
+    """The new value of group ``name``: a dict of changes to ``cur``, or an instance."""
+    cls = _GROUPS[name]
+    if isinstance(v, cls):
+        return v
+    if not isinstance(v, Mapping):
+        raise ValueError(f"RigParams.{name} = {v!r} is invalid: must be a dict of "
+                         f"{cls.__name__} fields or a {cls.__name__}")
+    known = [f.name for f in fields(cls)]
+    unknown = [k for k in v if k not in known]
+    if unknown:
+        hints = "".join(did_you_mean(k, known) for k in unknown[:1])
+        raise ValueError(f"{cls.__name__} has no field(s) {sorted(map(str, unknown))}{hints}; "
+                         f"fields: {known}")
+    return replace(cur, **dict(v))
 
 
 def thesis_rig(supply_bar_gauge: float = 2.5, **changes: Any) -> RigParams:

@@ -10,8 +10,10 @@ True
 from __future__ import annotations
 
 import math
+import numbers
+import warnings
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence, TypeVar
 
 import numpy as np
 
@@ -19,16 +21,69 @@ from .params import RigParams
 from .physics import layout as L
 from .physics import system as K
 from .physics.energy import flow_exergy, saving_ratio
-from .physics.orifice import NOC, linear_conductance, orifice_constants
+from .physics.orifice import NOC, OC_CM_STAR, linear_conductance, orifice_constants
 
 RK3_REAL_LIMIT = 2.51  # SSP-RK3 stability bound on the negative real axis (h |λ|)
 RK3_IMAG_LIMIT = math.sqrt(3.0)  # ... and on the imaginary axis (h |ω|)
 #: largest h lambda of the lumped line's implicit orifice chain (see stability_limits)
 CHAIN_H_LAMBDA = 40.0
+#: factor on the FD line's acoustic bound with two cells (see stability_limits)
+TWO_CELL_CFL_FACTOR = 0.5
+#: ... with the valve and port conductances in the bound too (see stability_limits)
+CHAIN_H_LAMBDA_ENDS = 60.0
+
+
+#: Longest simulated span [s] of one call (a stroke lasts seconds; longer is a unit slip).
+MAX_SPAN_S = 3600.0
+#: Most samples one :meth:`Plant.run` records (8 bytes x channels each).
+MAX_RECORD_ROWS = 20_000_000
+#: Times a call retries with half the automatic substep after a non-physical state.
+MAX_STEP_RETRIES = 4
+_T = TypeVar("_T")
 
 
 class SimulationError(RuntimeError):
     """The state went non-physical; the message names the time and the state."""
+
+
+class RigWarning(UserWarning):
+    """A rig that can be simulated but is almost surely not what was meant."""
+
+
+def check_command(value: object, what: str = "command") -> float:
+    """A valve command as the kernels take it: exactly 0 (cut off) or 1 (supply connected)."""
+    ok = isinstance(value, (numbers.Real, np.bool_)) and not (
+        isinstance(value, float) and math.isnan(value))
+    if not ok or float(value) not in (0.0, 1.0):  # type: ignore[arg-type]
+        raise ValueError(f"{what} = {value!r} is invalid: must be 0 (cut off) or 1 (supply "
+                         f"connected)")
+    return float(value)  # type: ignore[arg-type]
+
+
+def check_duration(value: object, what: str = "duration_s", allow_zero: bool = False) -> float:
+    """A simulated span [s]: finite, > 0 (or >= 0) and at most :data:`MAX_SPAN_S`."""
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or not (value >= 0 if allow_zero else value > 0):  # type: ignore[operator]
+        raise ValueError(f"{what} = {value!r} is invalid: must be a finite number "
+                         f"{'>= 0' if allow_zero else '> 0'} [s]")
+    if value > MAX_SPAN_S:  # type: ignore[operator]
+        raise ValueError(f"{what} = {value!r} s is more than {MAX_SPAN_S:g} s in one call (ms "
+                         f"given as s?); advance in shorter calls")
+    return float(value)  # type: ignore[arg-type]
+
+
+def check_schedule(schedule: Iterable[tuple[float, int]]) -> list[tuple[float, float]]:
+    """Valve commands ``(time_s, value)``: times finite and >= 0, values 0 or 1; sorted."""
+    out = []
+    for k, item in enumerate(schedule):
+        try:
+            t, v = item
+        except (TypeError, ValueError):
+            raise ValueError(f"schedule[{k}] = {item!r} is invalid: must be a pair "
+                             f"(time_s, command)") from None
+        t = check_duration(t, f"schedule[{k}] time", allow_zero=True)
+        out.append((t, check_command(v, f"schedule[{k}] command")))
+    return sorted(out)
 
 
 # ------------------------------------------------------------------------------------------
@@ -118,6 +173,8 @@ def stability_limits(params: RigParams) -> dict[str, float]:
       centred momentum flux the semi-discrete modes of a uniform flow satisfy
       ``|ω| <= 2 c / dx`` for every flow speed ``|u| <= c`` (``c`` isothermal sound speed; tee
       volumes only lower it), so the SSP-RK3 bound on the imaginary axis gives ``√3 dx / (2 c)``;
+      ``c`` becomes ``u_max`` where a port or valve wider than the tube can drive the end
+      cell's gas faster than sound, and the bound halves with two cells (see the code);
     - ``orifice <name>``: the stiffest explicit orifice-volume pair (linearised orifice
       conductance): exhaust, leaks, and the valve when the line has a single cell (that cell
       takes the implicit port flow, the valve's is explicit);
@@ -162,12 +219,33 @@ def stability_limits(params: RigParams) -> dict[str, float]:
         G = linear_conductance(ps, cd * ln.area_m2, T, oc)
         n = ln.n_cells
         lam = max(2.0 * R * T * G * ((i > 0) + (i < n - 1)) / vol[i] for i in range(n))
-        out["implicit orifice chain of the lumped line"] = CHAIN_H_LAMBDA / lam
+        # the end cells also exchange through the valve and the port: with them in the bound,
+        # failures came at h lambda ~ 90 both on the thesis rig and on random rigs whose port
+        # is several times the tube's area (property test), where the joints-only bound let
+        # h lambda reach ~90 at its limit of 40; the tighter of the two bounds holds
+        gv = linear_conductance(ps, cd * v.area_m2, T, oc)
+        gp = linear_conductance(ps, cd * c.port_area_m2, T, oc)
+        lam_ends = max(2.0 * R * T * ((gv if i == 0 else G) + (gp if i == n - 1 else G))
+                       / vol[i] for i in range(n))
+        out["implicit orifice chain of the lumped line"] = min(CHAIN_H_LAMBDA / lam,
+                                                                CHAIN_H_LAMBDA_ENDS / lam_ends)
     if ln.model == "fd":
         csound = math.sqrt(R * T)
         dx = ln.length_m / ln.n_cells
-        # staggered grid, centred flux: |ω| <= 2 c / dx for |u| <= c (see the docstring)
-        out["line CFL"] = RK3_IMAG_LIMIT * dx / (2.0 * csound)
+        # staggered grid, centred flux: |ω| <= 2 c / dx for |u| <= c (see the docstring). The
+        # end cells' boundary flows are orifice flows: a port or valve wider than the tube can
+        # drive the gas in an end cell faster than sound, at most at the choked flux,
+        # u = Cm* R sqrt(T) CdA / A_line (independent of pressure), and the artificial viscosity
+        # grows stiff with it: the bound takes 2 u_max for 2 c (found by the property test over
+        # random rigs: ports 3.5-4x the tube's area, cushion exits; stable again with margin)
+        u_max = max(csound, oc[OC_CM_STAR] * R * math.sqrt(T) * cd
+                    * max(c.port_area_m2, v.area_m2) / ln.area_m2)
+        out["line CFL"] = RK3_IMAG_LIMIT * dx / (2.0 * u_max)
+        if ln.n_cells == 2:
+            # the only interior face takes the artificial viscosity of both end cells, whose
+            # flows are orifice-driven: random rigs and command sequences (property test) were
+            # stable only to 0.62 of the bound (3 cells: 0.92, 4-6 cells: 0.94-1); half of it
+            out["line CFL"] *= TWO_CELL_CFL_FACTOR
         lam_f = 32.0 * g.viscosity_pa_s * R * T / (0.5 * pa * ln.diameter_m**2)
         out["line friction"] = RK3_REAL_LIMIT / lam_f
     M = params.moving_mass_kg
@@ -232,7 +310,14 @@ class Plant:
 
     def __init__(self, params: RigParams | None = None):
         self.params = params or RigParams()
+        if not isinstance(self.params, RigParams):
+            raise ValueError(f"Plant needs a RigParams, got {type(params).__name__} (a dict: "
+                             f"RigParams.from_dict(d))")
+        why = self.params.cannot_move()
+        if why:
+            warnings.warn(f"Plant: {why}", RigWarning, stacklevel=2)
         self.dt_s, self.dt_limited_by = choose_dt(self.params)
+        self.dt_retries = 0  # times the substep was halved after a non-physical step
         self.P = pack(self.params, self.dt_s)
         self.n_cells = self.params.line.n_cells
         self._b = 2 * self.n_cells - 1
@@ -307,16 +392,15 @@ class Plant:
     # -- control -------------------------------------------------------------------------
     def command(self, value: int) -> None:
         """Valve command (1 = supply connected, 0 = cut off), effective after the valve delay."""
-        K.command(self.d, self.P, float(value))
+        K.command(self.d, self.P, check_command(value))
 
     def advance(self, duration_s: float, command: int | None = None,
                 stop_on_arrival: bool = False) -> None:
         """Give ``command`` (if not None) and advance by ``duration_s`` [s] (control-level API)."""
-        st = K.command_advance(self.y, self.P, self.d, self._work,
-                               -1.0 if command is None else float(command), float(duration_s),
-                               bool(stop_on_arrival))
-        if st:
-            self._check(st)
+        cmd = -1.0 if command is None else check_command(command)
+        dur = check_duration(duration_s)
+        self._retrying(lambda: self._check(K.command_advance(
+            self.y, self.P, self.d, self._work, cmd, dur, bool(stop_on_arrival))))
 
     def run(self, t_end: float, schedule: Iterable[tuple[float, int]] = ((0.0, 1),),
             record_dt: float = 1e-3, cut_on_arrival: bool = False) -> Trajectory:
@@ -324,7 +408,20 @@ class Plant:
 
         ``cut_on_arrival`` commands a cut-off the moment the piston reaches the end of stroke
         (the thesis's end-stroke cut-off). Continues from the current state."""
-        sched = sorted((float(t), int(v)) for t, v in schedule)
+        sched = check_schedule(schedule)
+        if not (isinstance(t_end, numbers.Real) and math.isfinite(t_end) and t_end > self.time_s):
+            raise ValueError(f"t_end = {t_end!r} is invalid: must be a finite time [s] after the "
+                             f"current time {self.time_s:g} s")
+        check_duration(t_end - self.time_s, "t_end - current time")
+        check_duration(record_dt, "record_dt")
+        rows = (t_end - self.time_s) / record_dt
+        if rows > MAX_RECORD_ROWS:
+            raise ValueError(f"run(t_end={t_end:g}, record_dt={record_dt:g}) would record "
+                             f"{rows:.3g} samples, more than {MAX_RECORD_ROWS:g}: raise record_dt")
+        return self._retrying(lambda: self._run(t_end, sched, record_dt, cut_on_arrival))
+
+    def _run(self, t_end: float, sched: list[tuple[float, float]], record_dt: float,
+             cut_on_arrival: bool) -> Trajectory:
         stops = sorted({t for t, _ in sched if t > self.time_s + 1e-12 and t < t_end} | {t_end})
         nrow = int(math.floor((t_end - self.time_s) / record_dt + 1e-9)) + 3 + 2 * len(stops)
         rec = np.zeros((nrow, L.NR))
@@ -350,6 +447,36 @@ class Plant:
         if nrec > 1:  # a segment boundary on the recording grid is written twice
             data = data[np.concatenate([[True], np.diff(data[:, 0]) > 1e-12])]
         return Trajectory(data)
+
+    def _retrying(self, call: Callable[[], _T]) -> _T:
+        """``call()``; when it meets a non-physical state with the automatic substep, restore the
+        state, halve the substep (for the rest of this plant's life), warn and call again (at
+        most :data:`MAX_STEP_RETRIES` times): the automatic substep comes from linear stability
+        bounds, and sudden changes on some rigs (orifices much wider than the tube) need less."""
+        snap = self.snapshot()
+        sound = self._state_is_physical()  # a state broken before the call is not retried
+        for attempt in range(MAX_STEP_RETRIES + 1):
+            try:
+                return call()
+            except SimulationError as exc:
+                if not sound or self.dt_limited_by == "user" or attempt == MAX_STEP_RETRIES:
+                    raise
+                self.restore(snap)
+                self.dt_s *= 0.5
+                self.P[L.P_DT] = self.dt_s
+                self.dt_retries += 1
+                warnings.warn(f"Plant: {exc}; retrying with half the substep, {self.dt_s:.3g} s, "
+                              f"kept for this plant (SolverParams(safety=...) below "
+                              f"{self.params.solver.safety:g} avoids the retry)", RigWarning,
+                              stacklevel=3)
+        raise AssertionError("unreachable")
+
+    def _state_is_physical(self) -> bool:
+        """Finite state with positive masses and temperatures (what the kernels check)."""
+        b, n = self._b, self.n_cells
+        y = self.y
+        return bool(np.isfinite(y).all() and np.isfinite(self.d).all() and (y[:n] > 0).all()
+                    and min(y[b + L.Y_MD], y[b + L.Y_ME], y[b + L.Y_TD], y[b + L.Y_TE]) > 0)
 
     def _check(self, status: int) -> None:
         if status == L.STATUS_OK:
@@ -546,10 +673,15 @@ class PlantBatch:
 
     def advance(self, commands: np.ndarray, duration_s: float) -> None:
         """Command every plant and advance all by ``duration_s`` [s]; raises on any failure."""
-        cmds = np.asarray(commands, dtype=np.float64)
+        cmds = np.asarray(commands)
         if cmds.shape != (len(self),):
             raise ValueError(f"commands must have shape ({len(self)},), got {cmds.shape}")
-        K.advance_batch(self.Y, self.P, self.D, cmds, float(duration_s), self.status, self.W)
+        if cmds.dtype.kind not in "biuf" or not np.isin(cmds, (0, 1)).all():
+            bad = cmds if cmds.dtype.kind not in "biuf" else cmds[~np.isin(cmds, (0, 1))]
+            raise ValueError(f"commands must be 0 (cut off) or 1 (supply connected); got "
+                             f"{bad.ravel()[:5]!r}")
+        K.advance_batch(self.Y, self.P, self.D, cmds.astype(np.float64),
+                        check_duration(duration_s), self.status, self.W)
         bad = np.flatnonzero(self.status)
         if bad.size:
             i = int(bad[0])

@@ -494,3 +494,48 @@ def test_non_number_option_is_a_value_error():
         CutOffEnv(control_period_s="5ms")
     with pytest.raises(ValueError, match="w_time"):
         CutOffEnv(w_time=True)
+
+
+# --- careless input: actions, reset options, rig (refused, never rounded or ignored) --------
+@pytest.mark.parametrize("action", [2, -1, 0.5, 1.7, 1.0, "1", None, np.array([1]),
+                                    np.array([[0]]), np.float64(1.0), [1]])
+def test_actions_other_than_integer_0_or_1_are_refused(action):
+    env = CutOffEnv()
+    env.reset(seed=0)
+    t0 = env._step_info(0)["time_s"]
+    with pytest.raises(ValueError, match="Discrete\\(2\\)|shape"):
+        env.step(action)
+    assert env._step_info(0)["time_s"] == t0  # nothing was stepped
+
+
+@pytest.mark.parametrize("action", [0, 1, True, np.int64(1), np.int32(0), np.array(1),
+                                    np.array(0, dtype=np.uint8)])
+def test_integer_actions_of_any_kind_are_taken(action):
+    env = CutOffEnv()
+    env.reset(seed=0)
+    env.step(action)
+    assert env._step_info(0)["supply_cut"] == bool(int(action))
+
+
+def test_a_wrapped_env_refuses_bad_actions_too():
+    env = gym.make(ENV_ID)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="Discrete"):
+        env.step(2)
+
+
+@pytest.mark.parametrize("options,msg", [
+    ({"condition": Conditions()}, r"unknown reset option 'condition'.*did you mean 'conditions'"),
+    ({"seed": 3}, "unknown reset option 'seed'"),
+    ({"conditions": {"load_mass": 5.0}}, r"no field 'load_mass'.*did you mean 'load_mass_kg'"),
+    ({"conditions": 5.0}, "must be Conditions or a dict"),
+    ("conditions", "must be a dict"),
+])
+def test_bad_reset_options_are_refused(options, msg):
+    with pytest.raises(ValueError, match=msg):
+        CutOffEnv().reset(seed=0, options=options)
+
+
+def test_rig_must_be_rig_params():
+    with pytest.raises(ValueError, match="RigParams.from_dict"):
+        CutOffEnv(rig={"load_mass_kg": 3.0})

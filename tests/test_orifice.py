@@ -126,14 +126,14 @@ def test_antisymmetry(a, b, sTa, sTb, model, iso_b):
        model=st.sampled_from([0.0, 1.0]), iso_b=st.floats(0.0, 0.9),
        lin=st.floats(1e-4, 0.2))
 def test_monotone_in_downstream_pressure(p_up, r1, r2, model, iso_b, lin):
-    """More downstream pressure never gives more flow. Tolerance 1e-7 relative: with the thesis
-    law the flow rises by ~1e-8 between r = 0.528 and the true critical ratio 0.5283 (see
-    test_thesis_law_sliver_above_0528)."""
+    """More downstream pressure never gives more flow. Tolerance 2e-7 relative: with the thesis
+    law the flow rises by up to 1.74e-7 between r = 0.528 and the true critical ratio 0.52828
+    (see test_thesis_law_sliver_above_0528; the former 1e-7 failed on a random draw)."""
     oc = O.orifice_constants(GAMMA, R, model, iso_b, lin)
     lo, hi = sorted((r1, r2))
     f_lo = O.mass_flow(p_up, lo * p_up, CDA, SQRT_T, SQRT_T, oc)
     f_hi = O.mass_flow(p_up, hi * p_up, CDA, SQRT_T, SQRT_T, oc)
-    assert f_hi <= f_lo * (1.0 + 1e-7)
+    assert f_hi <= f_lo * (1.0 + 2e-7)
     assert f_hi >= 0.0
 
 
@@ -147,7 +147,7 @@ def test_monotone_in_upstream_pressure(p_dn, k1, k2, model):
 
 
 @pytest.mark.xfail(strict=True, reason="SUSPICIOUS (tiny): thesis law chokes at r = 0.528 but "
-                   "eq. 4.2 peaks at (2/(γ+1))^(γ/(γ-1)) = 0.52828, so the flow rises by ~1e-8 "
+                   "eq. 4.2 peaks at (2/(γ+1))^(γ/(γ-1)) = 0.52828, so the flow rises by up to 1.7e-7 "
                    "relative when the downstream pressure rises across (0.528, 0.52828)")
 def test_thesis_law_sliver_above_0528():
     p_up = 5e5

@@ -155,7 +155,7 @@ def test_edge_values_that_are_valid():
     LineParams(n_cells=1, model="lumped")
     LineParams(n_cells=4096)
     SolverParams(dt_s=1e-5, safety=1.0)
-    RigParams(supply_pressure_gauge_pa=1.0, load_mass_kg=0.0)
+    RigParams(supply_pressure_gauge_pa=1e4, load_mass_kg=0.0, friction=FrictionParams(static_n=100.0))
 
 
 def test_rig_validation_error_message_says_what_is_wrong():
@@ -485,3 +485,81 @@ def test_effects_active_lists_all_and_ignores_secondary_parameters():
     assert set(e.active) == {"leakage", "heat_transfer", "stribeck_friction", "sensor_lag",
                              "dead_volume"}
     assert len(e.active) == 5
+
+
+# ------------------------------------------------------------------------------------------
+# careless input: None, wrong group types, typos, unit slips (each refused with a clear message)
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("cls,name", [(RigParams, "load_mass_kg"), (CylinderParams, "bore_m"),
+                                      (FrictionParams, "static_n"), (GasParams, "gamma")])
+def test_none_in_a_number_field_is_a_valueerror_naming_it(cls, name):
+    with pytest.raises(ValueError, match=rf"{cls.__name__}\.{name} = None.*finite number"):
+        cls(**{name: None})
+
+
+def test_none_in_a_string_field_says_string():
+    with pytest.raises(ValueError, match=r"LineParams\.model = None.*a string"):
+        LineParams(model=None)
+
+
+def test_none_where_allowed_is_accepted():
+    assert ValveParams(delay_s=None).delay_s is None and SolverParams(dt_s=None).dt_s is None
+
+
+@pytest.mark.parametrize("group,value", [("cylinder", 0.1), ("friction", None), ("gas", "air"),
+                                         ("valve", FrictionParams())])
+def test_a_group_that_is_not_its_dataclass_or_a_dict_is_refused(group, value):
+    with pytest.raises(ValueError, match=rf"RigParams\.{group} = .*must be"):
+        RigParams.from_dict({group: value})
+    with pytest.raises(ValueError, match=rf"RigParams\.{group} = "):
+        RigParams(**{group: value})
+
+
+def test_a_number_field_given_a_dict_is_refused():
+    with pytest.raises(ValueError, match=r"RigParams\.load_mass_kg"):
+        RigParams().with_(load_mass_kg={"kg": 3})
+
+
+@pytest.mark.parametrize("d,nearest", [({"load_mass": 3.0}, "load_mass_kg"),
+                                       ({"cylinder": {"bore": 0.1}}, "bore_m"),
+                                       ({"friction": {"static": 300.0}}, "static_n"),
+                                       ({"cylindre": {}}, "cylinder")])
+def test_typos_are_refused_with_the_nearest_name(d, nearest):
+    with pytest.raises(ValueError, match=rf"did you mean '{nearest}'"):
+        RigParams.from_dict(d)
+
+
+def test_from_dict_of_a_non_mapping_is_a_valueerror():
+    with pytest.raises(ValueError, match="mapping"):
+        RigParams.from_dict([("load_mass_kg", 2.0)])
+
+
+@pytest.mark.parametrize("changes,pattern", [
+    ({"cylinder": {"bore_m": 125.0}}, r"bore_m = 125.0 is not plausible.*mm given as m"),
+    ({"cylinder": {"stroke_m": 180.0}}, r"stroke_m = 180.0 is not plausible.*mm given as m"),
+    ({"cylinder": {"port_area_m2": 38.9}}, r"port_area_m2.*mm² given as m²"),
+    ({"cylinder": {"dead_volume_m3": 0.5}}, r"dead_volume_m3.*litres"),
+    ({"valve": {"area_m2": 15.6}}, r"ValveParams\.area_m2.*mm² given as m²"),
+    ({"valve": {"delay_s": 185.0}}, r"delay_s.*ms given as s"),
+    ({"line": {"diameter_m": 5.0}}, r"diameter_m.*mm given as m"),
+    ({"gas": {"ambient_pressure_pa": 1.01325}}, r"ambient_pressure_pa.*bar given as Pa"),
+    ({"gas": {"ambient_temperature_k": 20.0}}, r"ambient_temperature_k.*°C given as K"),
+    ({"supply_pressure_gauge_pa": 2.5}, r"supply_pressure_gauge_pa = 2.5.*2.5 bar = 250000 Pa"),
+    ({"load_mass_kg": 1e300}, r"load_mass_kg.*not plausible"),
+])
+def test_unit_slips_are_refused_with_the_likely_unit(changes, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        RigParams().with_(**changes)
+
+
+def test_a_rig_that_can_never_move_says_why():
+    """0.2 bar on the thesis rig gives ~230 N, below the 359 N breakaway."""
+    assert "can never move" in RigParams(supply_pressure_gauge_pa=20_000.0).cannot_move()
+    assert "static friction" in RigParams().with_(friction={"static_n": 1e5}).cannot_move()
+    assert RigParams(supply_pressure_gauge_pa=40_000.0).cannot_move() is None  # ~460 N
+    assert RigParams().cannot_move() is None
+
+
+def test_malformed_tee_volumes_are_a_valueerror():
+    with pytest.raises(ValueError, match="tee_volumes"):
+        LineParams(tee_volumes=(0.1, 0.2))

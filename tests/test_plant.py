@@ -6,6 +6,7 @@ Relations and physics only: no calibrated default value is hard-coded."""
 from __future__ import annotations
 
 import math
+import os
 import re
 
 import numpy as np
@@ -16,7 +17,7 @@ from hypothesis import strategies as st
 from conftest import T_MAX, Run, net_force, simulate
 from pneugym import Plant, PlantBatch, RigParams, SimulationError
 from pneugym.physics import layout as L
-from pneugym.plant import choose_dt, stability_limits
+from pneugym.plant import RigWarning, choose_dt, stability_limits
 
 MODE_MOVING, MODE_STUCK, MODE_END, MODE_START = L.MODE_MOVING, L.MODE_STUCK, L.MODE_END, L.MODE_START
 
@@ -170,7 +171,8 @@ def test_piston_stays_put_until_the_net_force_exceeds_static_friction(convention
 
 
 def test_huge_static_friction_never_moves():
-    run = simulate(RigParams().with_(friction={"static_n": 1e7}), t_end=2.0)
+    with pytest.warns(RigWarning, match="can never move"):
+        run = simulate(RigParams().with_(friction={"static_n": 1e7}), t_end=2.0)
     assert np.all(run.traj["x"] == 0.0) and np.all(run.traj["v"] == 0.0)
     assert run.plant.mode == MODE_START
     assert run.plant.arrival_time_s is None
@@ -504,6 +506,7 @@ def test_simulation_error_names_time_and_state():
     with pytest.raises(SimulationError) as exc:
         pl.advance(0.05)
     msg = str(exc.value)
+    assert pl.dt_retries == 0
     assert isinstance(exc.value, RuntimeError)
     assert f"t = {pl.time_s:.6f} s" in msg
     assert "non-positive" in msg
@@ -518,6 +521,7 @@ def test_simulation_error_on_nan():
     pl.y[2 * pl.n_cells - 1 + L.Y_V] = float("nan")
     with pytest.raises(SimulationError, match="non-finite"):
         pl.advance(0.01)
+    assert pl.dt_retries == 0  # a state broken before the call is not retried
 
 
 def test_batch_simulation_error_names_the_plant():
@@ -743,3 +747,162 @@ def test_lumped_line_converges_at_second_order():
     errs = [np.max(np.abs(final(dt0 / k) - ref) / scale) for k in (2, 4, 8)]
     orders = [math.log2(errs[i] / errs[i + 1]) for i in range(2)]
     assert all(1.7 <= o <= 2.6 for o in orders), (errs, orders)
+
+
+# ------------------------------------------------------------------------------------------
+# careless input: commands, schedules, durations (refused before the kernels see them)
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("cmd", [5, 0.5, -1, float("nan"), "1", None, 2.0, [1]])
+def test_a_command_other_than_0_or_1_is_refused(cmd):
+    pl = Plant()
+    with pytest.raises(ValueError, match="must be 0 .cut off. or 1"):
+        pl.command(cmd)
+    if cmd is not None:  # advance(command=None) means "no new command"
+        with pytest.raises(ValueError, match="must be 0 .cut off. or 1"):
+            pl.advance(0.01, command=cmd)
+    assert pl.time_s == 0.0 and pl.valve_command == 0
+
+
+@pytest.mark.parametrize("cmd", [0, 1, True, np.int64(1), 1.0, np.float32(0.0)])
+def test_commands_0_and_1_of_any_numeric_type_are_taken(cmd):
+    pl = Plant()
+    pl.advance(0.01, command=cmd)
+    assert pl.valve_command == int(cmd)
+
+
+@pytest.mark.parametrize("dur", [0.0, -1.0, float("nan"), float("inf"), 1e5, "1", None])
+def test_a_bad_duration_is_refused_not_a_hang(dur):
+    pl = Plant()
+    with pytest.raises(ValueError, match="duration_s"):
+        pl.advance(dur, command=1)
+
+
+@pytest.mark.parametrize("t_end", [-1.0, 0.0, float("nan"), float("inf"), None])
+def test_run_refuses_a_bad_end_time(t_end):
+    with pytest.raises(ValueError, match="t_end"):
+        Plant().run(t_end)
+
+
+def test_run_refuses_an_end_time_before_the_current_time():
+    pl = Plant()
+    pl.advance(0.5, command=1)
+    with pytest.raises(ValueError, match="after the current time 0.5"):
+        pl.run(0.4)
+
+
+@pytest.mark.parametrize("schedule,pattern", [
+    ([(0.0, 2)], r"schedule\[0\] command = 2"),
+    ([(0.0, 1), (0.5, 0.5)], r"schedule\[1\] command = 0.5"),
+    ([(float("nan"), 1)], r"schedule\[0\] time = nan"),
+    ([(-0.1, 1)], r"schedule\[0\] time = -0.1"),
+    ([(0.0,)], r"schedule\[0\] = \(0.0,\).*pair"),
+    ([1], r"schedule\[0\] = 1.*pair"),
+])
+def test_run_refuses_a_bad_schedule(schedule, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        Plant().run(1.0, schedule)
+
+
+def test_run_refuses_a_recording_that_would_not_fit_in_memory():
+    with pytest.raises(ValueError, match="raise record_dt"):
+        Plant().run(3000.0, record_dt=1e-5)
+    with pytest.raises(ValueError, match="record_dt"):
+        Plant().run(1.0, record_dt=0.0)
+
+
+def test_plant_refuses_a_dict_rig():
+    with pytest.raises(ValueError, match="RigParams.from_dict"):
+        Plant({"load_mass_kg": 3.0})
+
+
+@pytest.mark.parametrize("cmds", [np.array([1, 2]), np.array([0.5, 1.0]), np.array(["1", "0"]),
+                                  np.array([np.nan, 1.0])])
+def test_batch_refuses_commands_other_than_0_or_1(cmds):
+    batch = PlantBatch([RigParams(), RigParams()])
+    with pytest.raises(ValueError, match="0 .cut off. or 1"):
+        batch.advance(cmds, 0.01)
+    with pytest.raises(ValueError, match="duration_s"):
+        batch.advance(np.ones(2), float("inf"))
+
+
+# ------------------------------------------------------------------------------------------
+# property: random valid rigs and command sequences keep the plant's invariants
+# ------------------------------------------------------------------------------------------
+@st.composite
+def rigs(draw) -> RigParams:
+    """A valid rig around the thesis's: sizes, volumes, orifices, line, friction, supply, load."""
+    bore = draw(st.floats(0.032, 0.2))
+    stroke = draw(st.floats(0.05, 0.5))
+    f = st.floats
+    rig = RigParams(
+        supply_pressure_gauge_pa=draw(f(1.5e5, 6e5)), load_mass_kg=draw(f(0.0, 40.0)),
+    ).with_(
+        cylinder={"bore_m": bore, "rod_m": draw(f(0.0, 0.4)) * bore, "stroke_m": stroke,
+                  "dead_volume_m3": draw(f(2e-5, 5e-4)), "port_area_m2": draw(f(1e-5, 8e-5)),
+                  "cushion_length_m": draw(f(0.0, 0.2)) * stroke,
+                  "cushion_factor_drive": draw(f(0.05, 1.0)),
+                  "cushion_factor_exhaust": draw(f(0.01, 1.0))},
+        line={"length_m": draw(f(0.2, 3.0)), "n_cells": draw(st.integers(1, 6)),
+              "model": draw(st.sampled_from(["fd", "lumped"]))},
+        valve={"area_m2": draw(f(5e-6, 4e-5)), "exhaust_area_m2": draw(f(5e-6, 6e-5))},
+        friction={"static_n": draw(f(0.0, 400.0)), "coulomb_n": draw(f(0.0, 200.0)),
+                  "viscous_n_s_per_m": draw(f(0.0, 2000.0))},
+    )
+    return rig
+
+
+@st.composite
+def schedules(draw) -> list[tuple[float, int]]:
+    """The extend command at 0, then up to 4 switches (cut, reconnect, ...) within 1.5 s."""
+    times = sorted(draw(st.lists(st.floats(0.0, 1.5), max_size=4)))
+    return [(0.0, 1)] + [(t, k % 2) for k, t in enumerate(times)]
+
+
+@pytest.mark.filterwarnings("ignore::pneugym.plant.RigWarning")  # rigs stuck by friction too
+@settings(max_examples=int(os.environ.get("PNEUGYM_PROPERTY_EXAMPLES", 30)), deadline=None)
+@given(rig=rigs(), schedule=schedules())
+def test_random_rigs_and_command_sequences_keep_the_invariants(rig, schedule):
+    """Mass balance to round-off, every pressure positive, the piston inside its stroke and at
+    rest until the valve has opened, for any valid rig and any command sequence."""
+    pl = Plant(rig)
+    tr = pl.run(2.0, schedule, record_dt=5e-3)
+    stroke = rig.cylinder.stroke_m
+    assert np.all(tr["x"] >= 0.0) and np.all(tr["x"] <= stroke * (1 + 1e-12))
+    for ch in ("p_drive", "p_exhaust", "p_port", "p_valve"):
+        assert np.all(np.isfinite(tr[ch])) and np.all(tr[ch] > 0.0), ch
+    assert np.all(pl.line_pressures_pa > 0.0)
+    assert abs(pl.mass_balance_error_kg) <= 1e-9 * pl.total_air_mass_kg
+    assert np.all(tr["x"][tr["t"] <= rig.valve_delay_s] == 0.0)
+
+
+def _valve_wider_than_the_tube() -> RigParams:
+    """A rig found by the property test: a valve twice the tube's area opening onto a long
+    three-cell line; the automatic substep (linear bounds) is unstable at the opening."""
+    tube = math.pi / 4 * 0.005**2
+    return RigParams(supply_pressure_gauge_pa=4.05e5, load_mass_kg=26.8).with_(
+        cylinder={"bore_m": 0.185, "stroke_m": 0.264, "dead_volume_m3": 2e-4,
+                  "port_area_m2": 1.69 * tube, "cushion_length_m": 0.0},
+        line={"length_m": 2.66, "n_cells": 3}, valve={"area_m2": 2.02 * tube},
+        friction={"static_n": 106.0, "coulomb_n": 0.0, "viscous_n_s_per_m": 0.0})
+
+
+def test_a_non_physical_step_is_retried_with_half_the_substep_and_said():
+    rig = _valve_wider_than_the_tube()
+    pl = Plant(rig)
+    dt0 = pl.dt_s
+    with pytest.warns(RigWarning, match="retrying with half the substep"):
+        tr = pl.run(1.0, record_dt=5e-3)
+    assert pl.dt_retries >= 1 and pl.dt_s == dt0 / 2**pl.dt_retries
+    assert np.all(tr["p_port"] > 0) and abs(pl.mass_balance_error_kg) <= 1e-9 * pl.total_air_mass_kg
+    assert tr["t"][-1] == pytest.approx(1.0)
+    # the retry continues from where the call began: the same run at the halved step from the
+    # start gives the same trajectory
+    again = Plant(rig.with_(solver={"dt_s": pl.dt_s})).run(1.0, record_dt=5e-3)
+    assert np.array_equal(again.data, tr.data)
+
+
+def test_a_user_substep_is_never_changed_behind_the_users_back():
+    rig = _valve_wider_than_the_tube()
+    dt = Plant(rig).dt_s
+    with pytest.raises(SimulationError, match="limited by user"):
+        Plant(rig.with_(solver={"dt_s": dt})).run(1.0, record_dt=5e-3)

@@ -291,3 +291,36 @@ def test_sb3_ppo_smoke():
     act, _ = model.predict(venv.reset(), deterministic=True)
     assert act.shape == (4,) and set(np.unique(act)) <= {0, 1}
     assert math.isfinite(float(model.logger.name_to_value.get("train/loss", 0.0)))
+
+
+# --- careless input: batched actions and reset options -----------------------------------------
+@pytest.mark.parametrize("actions,msg", [
+    (np.array([0, 1, 1]), r"shape \(2,\)"), (np.array([[0, 1]]), r"shape \(2,\)"),
+    (np.array([0, 2]), "integers 0 .keep. or 1"), (np.array([0.0, 1.0]), "dtype float64"),
+    (np.array([-1, 0]), "integers 0"), (np.array(["0", "1"]), "integers 0"), (1, r"shape \(2,\)"),
+])
+def test_vector_actions_of_the_wrong_shape_or_value_are_refused(actions, msg):
+    env = CutOffVectorEnv(num_envs=2)
+    env.reset(seed=0)
+    t0 = env._batch_info()["time_s"].copy()
+    with pytest.raises(ValueError, match=msg):
+        env.step(actions)
+    assert np.array_equal(env._batch_info()["time_s"], t0)
+
+
+def test_vector_actions_as_a_list_of_ints_are_taken():
+    env = CutOffVectorEnv(num_envs=2)
+    env.reset(seed=0)
+    info = env.step([0, 1])[4]
+    assert list(info["supply_cut"]) == [False, True]
+
+
+@pytest.mark.parametrize("options,msg", [
+    ({"condition": [Conditions()] * 2}, "did you mean 'conditions'"),
+    ({"conditions": Conditions()}, "a list of one Conditions"),
+    ({"conditions": [Conditions()]}, "a list of one Conditions"),
+    ({"conditions": [Conditions(), {"load": 3}]}, r"options\['conditions'\]\[1\].*no field 'load'"),
+])
+def test_vector_reset_options_are_checked(options, msg):
+    with pytest.raises(ValueError, match=msg):
+        CutOffVectorEnv(num_envs=2).reset(seed=0, options=options)

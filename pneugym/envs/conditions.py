@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..params import RigParams, _check, _finite, _nonneg, _positive
+from ..params import RigParams, _check, _finite, _nonneg, _positive, did_you_mean
 
 
 @dataclass(frozen=True)
@@ -125,10 +125,10 @@ class ConditionSpace:
 
     def with_(self, **changes: Any) -> "ConditionSpace":
         names = {f.name for f in fields(self)}
-        unknown = set(changes) - names
+        unknown = sorted(set(changes) - names)
         if unknown:
-            raise ValueError(f"ConditionSpace has no field(s) {sorted(unknown)}; "
-                             f"known: {sorted(names)}")
+            raise ValueError(f"ConditionSpace has no field(s) {unknown}"
+                             f"{did_you_mean(unknown[0], names)}; known: {sorted(names)}")
         return dataclasses.replace(self, **changes)
 
     def sample(self, rng: np.random.Generator) -> Conditions:
@@ -154,6 +154,21 @@ class ConditionSpace:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def as_conditions(c: Any, what: str = "conditions") -> Conditions:
+    """``c`` as :class:`Conditions`: an instance, or a mapping of its fields (unknown names are
+    refused with the nearest known one)."""
+    if isinstance(c, Conditions):
+        return c
+    if not isinstance(c, Mapping):
+        raise ValueError(f"{what} = {c!r} is invalid: must be Conditions or a dict of its fields")
+    known = [f.name for f in fields(Conditions)]
+    unknown = [k for k in c if k not in known]
+    if unknown:
+        raise ValueError(f"{what}: Conditions has no field {unknown[0]!r}"
+                         f"{did_you_mean(unknown[0], known)}; fields: {known}")
+    return Conditions(**c)
 
 
 def fixed(c: Conditions) -> ConditionSpace:
@@ -195,4 +210,4 @@ def resolve(preset: str | ConditionSpace | Conditions | None,
     return space.with_(**dict(overrides)) if overrides else space
 
 
-__all__ = ["Conditions", "ConditionSpace", "PRESETS", "resolve", "fixed"]
+__all__ = ["Conditions", "ConditionSpace", "PRESETS", "resolve", "fixed", "as_conditions"]

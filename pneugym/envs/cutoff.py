@@ -48,13 +48,13 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..params import RigParams
+from ..params import RigParams, did_you_mean
 from ..physics import layout as L
 from ..physics import system as K
 from ..physics.energy import saving_ratio
 from ..plant import Plant, SimulationError, set_supply_dip
 from . import episode as EP
-from .conditions import Conditions, ConditionSpace, resolve
+from .conditions import Conditions, ConditionSpace, as_conditions, resolve
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,50 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
 REGISTERED_MAX_STEPS = 800  # max_episode_steps of pneugym/CutOff-v0 (4 s at 5 ms)
 _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
+
+
+RESET_OPTIONS = ("conditions",)
+
+
+def check_action(action: Any) -> int:
+    """One action as :class:`gymnasium.spaces.Discrete` (2) takes it: an integer 0 or 1 (Python,
+    numpy, or a 0-d integer array); anything else is refused, never rounded or reshaped."""
+    if isinstance(action, (bool, np.bool_)):
+        return int(action)
+    if isinstance(action, np.ndarray) and action.shape != ():
+        raise ValueError(f"action {action!r} has shape {action.shape}: one environment takes one "
+                         f"action, 0 (keep) or 1 (cut off); pass action.item()")
+    if not (isinstance(action, (int, np.integer)) or (
+            isinstance(action, np.ndarray) and action.dtype.kind in "biu")) or int(action) not in (0, 1):
+        raise ValueError(f"action {action!r} is invalid: the action space is Discrete(2), 0 "
+                         f"(keep the supply) or 1 (cut it off), as an integer")
+    return int(action)
+
+
+def check_actions(actions: Any, n: int) -> np.ndarray:
+    """A batch of ``n`` actions, each 0 or 1 (integers), shape exactly ``(n,)``."""
+    a = np.asarray(actions)
+    if a.shape != (n,):
+        raise ValueError(f"actions must have shape ({n},), one per sub-environment; got shape "
+                         f"{a.shape}")
+    if a.dtype.kind not in "biu" or not np.isin(a, (0, 1)).all():
+        bad = a if a.dtype.kind not in "biu" else a[~np.isin(a, (0, 1))]
+        raise ValueError(f"actions must be integers 0 (keep) or 1 (cut off); got "
+                         f"{bad.ravel()[:5]!r} (dtype {a.dtype})")
+    return a.astype(np.int64)
+
+
+def check_options(options: Any) -> Mapping[str, Any]:
+    """``reset`` options: a mapping whose keys are in :data:`RESET_OPTIONS`."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"reset options must be a dict, got {options!r}")
+    for k in options:
+        if k not in RESET_OPTIONS:
+            raise ValueError(f"unknown reset option {k!r}{did_you_mean(k, RESET_OPTIONS)}; "
+                             f"known: {list(RESET_OPTIONS)}")
+    return options
 
 
 @functools.lru_cache(maxsize=4096)
@@ -147,6 +191,9 @@ class _CutOffCore:
         if reward_mode not in ("dense", "sparse"):
             raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
         self.space: ConditionSpace = resolve(preset, conditions)
+        if rig is not None and not isinstance(rig, RigParams):
+            raise ValueError(f"rig = {rig!r} is invalid: must be a RigParams (from a dict: "
+                             f"RigParams.from_dict(d))")
         base = rig or RigParams()
         if sensor_lag_s:
             base = base.with_(effects={"sensor_lag_s": float(sensor_lag_s)})
@@ -337,11 +384,11 @@ class CutOffEnv(_CutOffCore, gym.Env):
 
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
         super().reset(seed=seed)
-        cond = (options or {}).get("conditions")
+        cond = check_options(options).get("conditions")
         if cond is None:
             cond = self.space.sample(self.np_random)
-        elif isinstance(cond, Mapping):
-            cond = Conditions(**cond)
+        else:
+            cond = as_conditions(cond, "options['conditions']")
         self._start(0, cond)
         self._observe(self._all, self.np_random, fresh=True)
         self._trace = []
@@ -355,7 +402,7 @@ class CutOffEnv(_CutOffCore, gym.Env):
             raise RuntimeError("call reset() before step()")
         if self._e[EP.E_DONE] != 0.0:
             raise RuntimeError("the episode has ended: call reset()")
-        r, st = EP.step_one(self._y, self._p, self._d, self._e, int(action), self._W[0])
+        r, st = EP.step_one(self._y, self._p, self._d, self._e, check_action(action), self._W[0])
         if st:
             self._status[0] = st
             self._check_status()
@@ -433,14 +480,17 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
             seeds = list(seed)
             if len(seeds) != n:
                 raise ValueError(f"seed list has {len(seeds)} entries for {n} environments")
+        conds = check_options(options).get("conditions")
+        if conds is not None:
+            if isinstance(conds, (Conditions, Mapping, str)) or not hasattr(conds, "__len__") \
+                    or len(conds) != n:
+                raise ValueError(f"options['conditions'] needs a list of one Conditions (or "
+                                 f"None) per environment ({n}); got {conds!r:.200}")
+            conds = [None if c is None else as_conditions(c, f"options['conditions'][{i}]")
+                     for i, c in enumerate(conds)]
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
-        conds = (options or {}).get("conditions")
-        if conds is not None and len(conds) != n:
-            raise ValueError(f"options['conditions'] needs one entry per environment ({n})")
         for i in range(n):
             c = conds[i] if conds is not None else None
-            if isinstance(c, Mapping):
-                c = Conditions(**c)
             self._start(i, c if c is not None else self.space.sample(self._rngs[i]))
         self._steps[:] = 0
         self._idle = np.zeros(n, dtype=bool)
@@ -453,7 +503,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
     def step(self, actions):
         if not self._rngs:
             raise RuntimeError("call reset() before step()")
-        acts = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
+        acts = check_actions(actions, self.num_envs)
         EP.step_batch(self.Y, self.P, self.D, self.E, acts, self._rewards, self._status, self._W)
         self._check_status()
         self._steps += 1

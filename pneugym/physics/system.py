@@ -622,7 +622,6 @@ def record_row(y, P, d, out, q_in):
 @njit(cache=True, error_model="numpy")
 def supply_flow(y, P, d):
     """Mass flow from the supply into the line [kg/s] at the current state."""
-    n = int(P[P_NCELLS])
     s, se = valve_opening(d, P, d[D_T])
     if s <= 0.0:
         return 0.0
