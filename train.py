@@ -12,19 +12,31 @@ Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``qu
 overrides it); ``--set key.sub=value`` overrides single entries. Every run directory holds
 ``run.json`` (configuration, seed, package versions, observation layout, status, validation
 history), the model (``model.zip`` / ``best_model.zip`` for SB3, ``model.pt`` for ESAC), the last
-checkpoints and the logs (``progress.csv``; TensorBoard files under ``tb/`` when ``tensorboard`` is
-installed). Files are written to a temporary name and renamed, so an interrupted run leaves its last
+checkpoints and the logs (``progress.csv``; TensorBoard event files beside it when
+``tensorboard`` is installed). Files are written to a temporary name and renamed, so an interrupted run leaves its last
 good checkpoint usable. Training seeds stay below 1,000,000; evaluation uses the seeds above.
+
+Runs are never lost: a run folder that holds anything is refused unless ``--resume`` (continue its
+last checkpoint; an error if there is none) or ``--force`` (start over: removes the previous run's
+model, checkpoints and logs, and lists them). SIGINT or SIGTERM stop training at the next step
+with a checkpoint and ``status: "interrupted"`` in ``run.json``; ``--resume`` continues from it (a
+second signal stops at once). Checkpoints are loaded without unpickling anything
+(``agents/safe_load.py``); DQN replay buffers are saved as plain arrays (``replay_*.npz``), and
+the pickled ``replay_*.pkl`` of older runs are loaded only with ``--trust-pickled-replay-buffer``
+(only for your own runs).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import hashlib
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -94,11 +106,11 @@ def _parse_value(text: str) -> Any:
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
-    """Write JSON to a temporary file and rename it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False, default=_jsonable))
-    os.replace(tmp, path)
+    """Write JSON to a temporary file and rename it over ``path``
+    (:func:`pneugym.outputs.atomic_write_json`, numpy values and paths converted)."""
+    from pneugym.outputs import atomic_write_json as write
+
+    write(path, obj, default=_jsonable)
 
 
 def _jsonable(v: Any) -> Any:
@@ -112,15 +124,29 @@ def _jsonable(v: Any) -> Any:
 
 
 def atomic_save_sb3(model, path: Path) -> None:
-    """``model.save`` to a temporary name, then rename (never a half-written zip at ``path``)."""
+    """``model.save`` to a temporary name, then rename (never a half-written zip at ``path``;
+    the temporary file is removed if the save is interrupted)."""
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.zip")
-    model.save(tmp)
-    os.replace(tmp, path)
+    try:
+        model.save(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def read_run(out: Path) -> dict[str, Any] | None:
+    """``out/run.json``, checked (:func:`agents.learned.load_run_file`), or None if absent."""
+    from agents.learned import load_run_file
+
     f = Path(out) / RUN_FILE
-    return json.loads(f.read_text()) if f.is_file() else None
+    return load_run_file(f) if f.is_file() else None
+
+
+def replay_file(ckpt: Path, suffix: str = ".npz") -> Path:
+    """The replay buffer saved with checkpoint ``ckpt`` (``replay_<steps>.npz``; ``.pkl``:
+    the pickled format of older runs)."""
+    return ckpt.with_name(ckpt.name.replace("ckpt_", "replay_", 1)).with_suffix(suffix)
 
 
 def _threads(cfg: Mapping[str, Any]) -> None:
@@ -278,22 +304,31 @@ def _sb3_parts():
             return True
 
         def save(self):
+            from agents.safe_load import save_replay_buffer
+
             d = self.out / "checkpoints"
             d.mkdir(parents=True, exist_ok=True)
             path = d / f"ckpt_{self.num_timesteps:09d}.zip"
             atomic_save_sb3(self.model, path)
-            if self.replay and hasattr(self.model, "save_replay_buffer"):
-                rb = d / f"replay_{self.num_timesteps:09d}.pkl"
-                tmp = d / f".replay.{os.getpid()}.tmp.pkl"
-                self.model.save_replay_buffer(tmp)
-                os.replace(tmp, rb)
-            self.record(checkpoint=str(path.relative_to(self.out)),
+            if self.replay and getattr(self.model, "replay_buffer", None) is not None:
+                save_replay_buffer(self.model.replay_buffer, replay_file(path))
+            self.record(checkpoint=path.relative_to(self.out).as_posix(),
                         timesteps_done=int(self.num_timesteps))
             ckpts = sorted(d.glob("ckpt_*.zip"))
             for old in ckpts[:-self.keep]:
                 old.unlink(missing_ok=True)
-                (d / old.name.replace("ckpt_", "replay_").replace(".zip", ".pkl")).unlink(
-                    missing_ok=True)
+                for suffix in (".npz", ".pkl"):
+                    replay_file(old, suffix).unlink(missing_ok=True)
+
+    class StopOnRequest(BaseCallback):
+        """Ends ``learn`` at the next environment step once a stop is requested (a signal)."""
+
+        def __init__(self, stop: StopRequest):
+            super().__init__()
+            self.stop = stop
+
+        def _on_step(self):
+            return self.stop.signal is None
 
     class AfterEval(BaseCallback):
         """After each validation of the EvalCallback (SB3's argmax decision): validate the
@@ -348,8 +383,8 @@ def _sb3_parts():
                        f"{'  (new best)' if row.get('new_best') else ''}")
 
     return dict(PPO=PPO, DQN=LatchedDQN, EvalCallback=EvalCallback, VecEnv=TrainingVecEnv,
-                ProgressBar=ProgressBar,
-                Checkpoints=Checkpoints, AfterEval=AfterEval)
+                ProgressBar=ProgressBar, Checkpoints=Checkpoints, AfterEval=AfterEval,
+                StopOnRequest=StopOnRequest)
 
 
 def sweep_decisions(model, layout: Mapping[str, Any], conds: Sequence[Any],
@@ -402,10 +437,11 @@ def choose_decision(rows: Sequence[Mapping[str, Any]], prefer_saving_within: flo
 
 
 def _schedule(v: Any):
-    """A learning rate: a number, or ``"lin_<x>"`` for a linear decay from ``x`` to 0."""
+    """A learning rate: a number, or ``"lin_<x>"`` for a linear decay from ``x`` to 0 (held at
+    0 past the budget: SB3's last rollout may overshoot it)."""
     if isinstance(v, str) and v.startswith("lin_"):
         x = float(v[4:])
-        return lambda progress: progress * x
+        return lambda progress: max(progress, 0.0) * x
     return float(v)
 
 
@@ -426,9 +462,58 @@ def _logger(out: Path, resume: bool):
     return configure(str(out), formats), formats
 
 
+def _resume_schedules(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """The schedules a resumed model takes from its run's config (``kwargs``: the algorithm's
+    keywords, ``learning_rate`` already through :func:`_schedule`); the others get SB3's
+    defaults (:func:`agents.safe_load.replacements`)."""
+    out = {k: kwargs[k] for k in ("learning_rate", "clip_range", "clip_range_vf") if k in kwargs}
+    if "train_freq" in kwargs:
+        tf = kwargs["train_freq"]
+        out["train_freq"] = tuple(tf) if isinstance(tf, list) else tf
+    return out
+
+
+def load_checkpoint(cls, algo: str, path: Path, venv, kwargs: Mapping[str, Any],
+                    layout: Mapping[str, Any]):
+    """The checkpoint at ``path`` on ``venv``, loaded without unpickling anything
+    (:func:`agents.safe_load.load_sb3`), its schedules from the run's config; refused with a
+    :class:`~agents.learned.LayoutMismatchError` if it was trained on another layout."""
+    from agents.learned import check_layout
+    from agents.safe_load import load_sb3
+
+    model = load_sb3(path, algo, cls=cls, env=venv, schedules=_resume_schedules(kwargs))
+    old = model.__dict__.get("pneugym_layout")
+    if old is not None and old != layout:
+        check_layout(old, layout, f"checkpoint {path}")
+    return model
+
+
+def restore_replay_buffer(model, ckpt: Path, trust_pickle: bool = False) -> None:
+    """Refill a resumed DQN's replay buffer from the arrays saved with checkpoint ``ckpt``. A
+    pickled buffer (``.pkl``, older runs) is loaded only with ``trust_pickle`` (a pickle can run
+    code); otherwise the run continues with an empty buffer, and says so."""
+    from agents.safe_load import load_replay_buffer
+
+    npz, pkl = replay_file(ckpt), replay_file(ckpt, ".pkl")
+    if npz.is_file():
+        n = load_replay_buffer(model.replay_buffer, npz)
+        print(f"replay buffer restored from {npz} ({n} transitions)", flush=True)
+    elif pkl.is_file() and trust_pickle:
+        print(f"loading the pickled replay buffer {pkl} (--trust-pickled-replay-buffer)",
+              flush=True)
+        model.load_replay_buffer(pkl)
+    elif pkl.is_file():
+        print(f"{pkl} is a pickled replay buffer (older pneugym), which can run code when "
+              f"loaded: not loaded; continuing with an empty replay buffer. If the run is your "
+              f"own, pass --trust-pickled-replay-buffer to load it.", flush=True)
+
+
 def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress: bool,
-              record) -> dict[str, Any]:
-    """PPO or DQN per ``cfg``; returns the summary written into ``run.json``."""
+              record, stop: StopRequest | None = None, trust_pickle: bool = False
+              ) -> dict[str, Any]:
+    """PPO or DQN per ``cfg``; returns the summary written into ``run.json``. When ``stop``
+    receives a signal, training ends at the next step with a checkpoint (atomically) and
+    :class:`TrainingInterrupted` is raised; so it is on a KeyboardInterrupt."""
     import torch
 
     P = _sb3_parts()
@@ -462,24 +547,14 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     if algo == "dqn":
         P["DQN"].explore_cut_prob = float(cfg.get("explore_cut_prob", 0.02))
     run = read_run(out) or {}
-    ckpt = run.get("checkpoint") if resume else None
-    logger, formats = _logger(out, resume and ckpt is not None)
+    ckpt = checkpoint_of(out, run) if resume else None
+    logger, formats = _logger(out, ckpt is not None)
     record(log_formats=formats)
     if ckpt:
-        print(f"resuming from {out / ckpt}", flush=True)
-        import warnings
-        with warnings.catch_warnings():  # n-step DQN: its buffer kwargs are saved, the warning is moot
-            warnings.filterwarnings("ignore", message=".*n_steps=.*is ignored")
-            model = cls.load(out / ckpt, env=venv, device="cpu", **{
-                k: v for k, v in kwargs.items() if k in ("learning_rate",)})
-        old = model.__dict__.get("pneugym_layout")
-        if old is not None and old != layout:
-            from agents.learned import check_layout
-            check_layout(old, layout, f"checkpoint {out / ckpt}")
+        print(f"resuming from {ckpt}", flush=True)
+        model = load_checkpoint(cls, algo, ckpt, venv, kwargs, layout)
         if algo == "dqn":
-            rb = out / ckpt.replace("ckpt_", "replay_").replace(".zip", ".pkl")
-            if rb.exists():
-                model.load_replay_buffer(rb)
+            restore_replay_buffer(model, ckpt, trust_pickle)
         # a fresh stream of training conditions after the resume
         venv.seed(seed + 7919 * (model.num_timesteps // 1000 + 1) % 100_000)
         model._last_obs = None
@@ -514,12 +589,24 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     ck = P["Checkpoints"](out, int(cfg["checkpoint_every"]), int(cfg.get("keep_checkpoints", 2)),
                           bool(cfg.get("save_replay_buffer", False)), record)
     bar = P["ProgressBar"](total, disable=not progress)
+    stop = stop or StopRequest()
     t0 = time.perf_counter()
     record(status="running", timesteps=total)
-    if remaining:
-        model.learn(remaining, callback=[evalcb, ck, bar], reset_num_timesteps=False,
-                    progress_bar=False)
+    try:
+        if remaining:
+            model.learn(remaining, callback=[evalcb, ck, bar, P["StopOnRequest"](stop)],
+                        reset_num_timesteps=False, progress_bar=False)
+    except KeyboardInterrupt:
+        stop.signal = stop.signal or "SIGINT"
+        if bar.bar is not None:
+            bar.bar.close()
     wall = time.perf_counter() - t0
+    prev_wall = float(run.get("train_wall_s", 0.0)) if ckpt else 0.0
+    if stop.signal is not None:  # keep what was trained: an interruption checkpoint
+        ck.init_callback(model)
+        ck.save()
+        record(train_wall_s=prev_wall + wall)
+        raise TrainingInterrupted(stop.signal, int(model.num_timesteps))
     if not after.history or after.history[-1]["timesteps"] != model.num_timesteps:
         # validate the final model too, so that the best model is chosen among all
         after.init_callback(model)
@@ -527,7 +614,6 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     atomic_save_sb3(model, out / "model.zip")
     ck.init_callback(model)
     ck.save()
-    prev_wall = float(run.get("train_wall_s", 0.0)) if ckpt else 0.0
     best = max(after.history, key=lambda r: r["return"])
     return {"model": "best_model.zip", "final_model": "model.zip", "timesteps_done":
             int(model.num_timesteps), "train_wall_s": prev_wall + wall,
@@ -635,15 +721,155 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
 # ------------------------------------------------------------------------------------------------
 # driver
 # ------------------------------------------------------------------------------------------------
+class StopRequest:
+    """A request to stop training: the name of the signal that asked (None: none yet)."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped by a signal (or Ctrl-C); ``run.json`` records ``status: "interrupted"``
+    and the last checkpoint, from which ``--resume`` continues."""
+
+    def __init__(self, signal_name: str, timesteps_done: int, run: dict[str, Any] | None = None):
+        super().__init__(f"training interrupted by {signal_name} after {timesteps_done} "
+                         f"timesteps")
+        self.signal_name, self.timesteps_done, self.run = signal_name, timesteps_done, run
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: StopRequest, graceful: bool = True):
+    """SIGINT and SIGTERM, while the block runs, request a stop (``stop.signal``): with
+    ``graceful`` the first only sets it (training ends at its next step and checkpoints), a
+    second raises KeyboardInterrupt; without, the first raises it. The previous handlers are
+    restored after the block (handlers exist only in the main thread: elsewhere, a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
+        first = stop.signal is None
+        stop.signal = stop.signal or name
+        if graceful and first:
+            print(f"\n{name}: stopping at the next step and saving a checkpoint (send it again to "
+                  f"stop at once)", file=sys.stderr, flush=True)
+            return
+        raise KeyboardInterrupt(name)
+
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    old = {s: signal.getsignal(s) for s in sigs}
+    try:
+        for s in sigs:
+            signal.signal(s, handler)
+        yield stop
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
+#: what train.py writes into a run directory (``--force`` removes these, and only these)
+RUN_OUTPUTS = (RUN_FILE, "model.zip", "best_model.zip", "model.pt", "accuracy.json",
+               "accuracy.png", "rule_sweep.json", "checkpoints", "tb", "progress*.csv",
+               "events.out.tfevents.*", "*.tmp", ".*.tmp*")
+
+
+def checkpoint_of(out: Path, run: Mapping[str, Any]) -> Path | None:
+    """The checkpoint ``run.json`` records (confined to ``out``), or None."""
+    from agents.learned import run_member
+
+    name = run.get("checkpoint")
+    return None if name is None else run_member(out, name, "checkpoint")
+
+
+def _resumable(out: Path, prev: Mapping[str, Any] | None, algo: str) -> Path:
+    """The checkpoint ``--resume`` continues from, or a ValueError saying what to do."""
+    if prev is None:
+        why = "the folder does not exist" if not out.exists() else f"it has no {RUN_FILE}"
+        raise ValueError(f"--resume: nothing to resume in {out}: {why}. Start a new run "
+                         f"without --resume.")
+    if prev.get("algo") != algo:
+        raise ValueError(f"--resume: {out} holds a {prev.get('algo')} run, not {algo}")
+    if algo == "esac":
+        raise ValueError(f"--resume: ESAC trains in one piece and keeps no checkpoints; start "
+                         f"{out} over with --force, or train into another --out")
+    ckpt = checkpoint_of(out, prev)
+    if ckpt is None:
+        raise ValueError(f"--resume: {out / RUN_FILE} records no checkpoint (the run stopped "
+                         f"before its first, due after checkpoint_every steps); start it over "
+                         f"with --force")
+    if not ckpt.is_file():
+        raise ValueError(f"--resume: {out / RUN_FILE} names the checkpoint {prev['checkpoint']},"
+                         f" which does not exist; start the run over with --force")
+    return ckpt
+
+
+def _occupied(out: Path, prev: Mapping[str, Any] | None) -> str:
+    """Why a new run may not start in the non-empty ``out``, and what to do."""
+    if prev is not None:
+        status = prev.get("status")
+        how = {"finished": "finished",
+               "interrupted": f"interrupted at {prev.get('timesteps_done', 0)} timesteps",
+               "running": "running, or killed"}.get(str(status), f"status {status!r}")
+        return (f"{out} holds a {prev.get('algo')} run ({how}): continue it with --resume, start "
+                f"it over with --force (removes its model, checkpoints and logs), or choose "
+                f"another --out")
+    names = sorted(p.name for p in out.iterdir())
+    return (f"{out} is not empty ({len(names)} entries: {', '.join(names[:5])}"
+            f"{', ...' if len(names) > 5 else ''}) and holds no {RUN_FILE}: choose a new or "
+            f"empty --out, or pass --force (removes only files train.py writes)")
+
+
+def _start_over(out: Path) -> list[str]:
+    """Remove the previous run's files (:data:`RUN_OUTPUTS`) from ``out``, saying which."""
+    import shutil
+
+    gone = sorted({p for pat in RUN_OUTPUTS for p in out.glob(pat)})
+    names = [p.name + ("/" if p.is_dir() and not p.is_symlink() else "") for p in gone]
+    for p in gone:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink(missing_ok=True)
+    kept = sorted(p.name for p in out.iterdir())
+    if names:
+        print(f"--force: starting {out} over; removed the previous run's {', '.join(names)}",
+              flush=True)
+    if kept:
+        print(f"--force: kept {', '.join(kept)} (not written by train.py)", flush=True)
+    return names
+
+
+def _config_changes(old: Any, new: Any, prefix: str = "") -> list[str]:
+    """The entries (``a.b: old -> new``) where a resumed run's config differs from the run's."""
+    if isinstance(old, Mapping) and isinstance(new, Mapping):
+        return [c for k in sorted(set(old) | set(new), key=str)
+                if k not in ("timesteps", "budget") or prefix
+                for c in _config_changes(old.get(k), new.get(k), f"{prefix}{k}.")]
+    return [] if old == new else [f"{prefix[:-1]}: {old!r} -> {new!r}"]
+
+
 def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int | None = None,
           seed: int = 0, resume: bool = False, budget: str = "default",
           config: str | Path | None = None, overrides: Sequence[str] = (),
-          progress: bool = True) -> dict[str, Any]:
-    """Train ``algo`` into ``out``; returns the final ``run.json`` content."""
+          progress: bool = True, force: bool = False,
+          trust_pickled_replay_buffer: bool = False) -> dict[str, Any]:
+    """Train ``algo`` into ``out``; returns the final ``run.json`` content.
+
+    ``out`` must be new or empty unless ``resume`` (continue from its last checkpoint; an error
+    if there is none) or ``force`` (start over: the previous run's files are removed first).
+    SIGINT or SIGTERM stop training at the next step: the last checkpoint is saved, ``run.json``
+    records ``status: "interrupted"`` and :class:`TrainingInterrupted` is raised. DQN replay
+    buffers of older runs (pickles) are loaded on resume only with
+    ``trust_pickled_replay_buffer`` (only for your own runs)."""
+    from pneugym.outputs import check_output_dir
     from pneugym.provenance import provenance
 
     if algo not in ALGOS:
         raise ValueError(f"unknown algorithm {algo!r}; choose one of {ALGOS}")
+    if resume and force:
+        raise ValueError("--resume continues the run in --out, --force starts it over: give one")
     _check_seed("training", seed)
     out = Path(out)
     cfg = load_config(algo, budget, config, overrides)
@@ -654,22 +880,30 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     from pneugym.envs.conditions import PRESETS
     if cfg["preset"] not in PRESETS:
         raise ValueError(f"unknown preset {cfg['preset']!r}; choose one of {sorted(PRESETS)}")
-    prev = read_run(out)
-    if prev and not resume and prev.get("status") in ("running", "finished"):
-        if any(out.iterdir()) and algo != prev.get("algo"):
-            raise ValueError(f"{out} holds a {prev.get('algo')} run; choose another --out")
-    if resume and prev is not None:
-        if prev.get("algo") != algo:
-            raise ValueError(f"--resume: {out} holds a {prev.get('algo')} run, not {algo}")
+    if out.exists() or not resume:
+        check_output_dir(out, "run folder (--out)")
+    prev = read_run(out) if out.is_dir() else None
+    if resume:
+        _resumable(out, prev, algo)
         if prev.get("seed") != seed:
             print(f"--resume: using the run's seed {prev['seed']} (not {seed})", flush=True)
             seed = int(prev["seed"])
+        changes = _config_changes(prev.get("config", {}), cfg)
+        if changes:
+            print("--resume: the configuration differs from the run's (the new values apply): "
+                  + "; ".join(changes), flush=True)
+    elif force:
+        _start_over(out)
+        prev = None
+    elif any(out.iterdir()):
+        raise ValueError(_occupied(out, prev))
     _threads(cfg)
     from agents.esac import source_hash
     from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: F401  (load the plant's code now)
     source_hash()  # ... and key caches by these sources, even if the files change meanwhile
-    out.mkdir(parents=True, exist_ok=True)
-    run: dict[str, Any] = dict(prev) if (resume and prev) else {}
+    run: dict[str, Any] = dict(prev) if resume else {}
+    if "interrupted" in run:
+        run["interruptions"] = [*run.get("interruptions", []), run.pop("interrupted")]
     run.update({"algo": algo, "seed": seed, "preset": cfg["preset"], "budget": budget,
                 "config": cfg, "command": [Path(sys.argv[0]).name, *sys.argv[1:]],
                 "provenance": provenance(), "pneugym_sources": source_hash(),
@@ -682,22 +916,35 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
 
     record(status="running")
     t0 = time.perf_counter()
-    if algo == "esac":
-        summary = train_esac(cfg, out, seed, progress, record)
-    else:
-        summary = train_sb3(cfg, out, seed, resume, progress, record)
+    stop = StopRequest()
+    try:
+        with stop_on_signals(stop, graceful=algo != "esac"):
+            if algo == "esac":
+                summary = train_esac(cfg, out, seed, progress, record)
+            else:
+                summary = train_sb3(cfg, out, seed, resume, progress, record, stop,
+                                    trust_pickled_replay_buffer)
+    except KeyboardInterrupt as exc:
+        sig = getattr(exc, "signal_name", None) or stop.signal or "SIGINT"
+        done = int(run.get("timesteps_done", 0)) if algo != "esac" else 0
+        record(status="interrupted", interrupted={
+            "signal": sig, "timesteps_done": done, "checkpoint": run.get("checkpoint")
+            if algo != "esac" else None, "wall_s": time.perf_counter() - t0})
+        raise TrainingInterrupted(sig, done, run) from None
     summary["total_wall_s"] = time.perf_counter() - t0 + (
-        float(prev.get("total_wall_s", 0.0)) if (resume and prev) else 0.0)
+        float(prev.get("total_wall_s", 0.0)) if resume else 0.0)
     record(status="finished", **summary)
     return run
 
 
 def model_path(run_dir: str | Path) -> Path | None:
-    """The model file of a finished run directory, or None."""
+    """The model file of a finished run directory (inside it), or None."""
+    from agents.learned import run_member
+
     run = read_run(Path(run_dir))
-    if not run or run.get("status") != "finished":
+    if not run or run.get("status") != "finished" or "model" not in run:
         return None
-    p = Path(run_dir) / run["model"]
+    p = run_member(Path(run_dir), run["model"], "model")
     return p if p.is_file() else None
 
 
@@ -705,14 +952,18 @@ def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path
                    budget: str = "quick", seed: int = 0, progress: bool = True
                    ) -> dict[str, Path]:
     """The model of each of ``names`` under ``runs_dir/<name>``, training those that are missing
-    with ``budget`` (evaluate.py's train-on-demand)."""
+    with ``budget`` (evaluate.py's train-on-demand; an interrupted run is resumed)."""
     paths = {}
     for name in names:
         d = Path(runs_dir) / name
         p = model_path(d)
         if p is None:
-            print(f"== no trained {name} under {d}: training it ({budget} budget)", flush=True)
-            train(name, d, seed=seed, budget=budget, progress=progress)
+            prev = read_run(d)
+            resume = bool(prev and name != "esac" and prev.get("algo") == name
+                          and prev.get("checkpoint"))
+            print(f"== no trained {name} under {d}: "
+                  f"{'resuming' if resume else 'training'} it ({budget} budget)", flush=True)
+            train(name, d, seed=seed, budget=budget, progress=progress, resume=resume)
             p = model_path(d)
             if p is None:
                 raise RuntimeError(f"training {name} into {d} did not leave a finished model")
@@ -735,14 +986,29 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--config", default=None, help="YAML file (default configs/<algo>.yaml)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a config entry, e.g. algo.learning_rate=1e-4")
+    ap.add_argument("--force", action="store_true",
+                    help="start over in a run folder that holds a run (removes its model, "
+                         "checkpoints and logs)")
+    ap.add_argument("--trust-pickled-replay-buffer", action="store_true",
+                    help="--resume of a DQN run from an older pneugym: load its pickled replay "
+                         "buffer (a pickle can run code: only for your own runs)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
+    out = args.out or f"runs/{args.algo}"
     try:
-        run = train(args.algo, args.out or f"runs/{args.algo}", args.preset, args.timesteps,
-                    args.seed, args.resume, args.budget, args.config, args.set,
-                    not args.no_progress)
+        run = train(args.algo, out, args.preset, args.timesteps, args.seed, args.resume,
+                    args.budget, args.config, args.set, not args.no_progress, args.force,
+                    args.trust_pickled_replay_buffer)
     except ValueError as exc:
         ap.error(str(exc))
+    except TrainingInterrupted as exc:
+        where = f"; last checkpoint {out}/{exc.run['checkpoint']}" if (
+            exc.run and exc.run.get("checkpoint")) else ""
+        again = (f"continue with: python train.py --algo {args.algo} --out {out} --resume"
+                 if args.algo != "esac" else "ESAC has no checkpoints: rerun with --force")
+        print(f"{exc}: {out}/{RUN_FILE} records it{where}; {again}", file=sys.stderr,
+              flush=True)
+        raise SystemExit(128 + signal.Signals[exc.signal_name].value) from None
     best = run.get("best", {})
     frac = best.get("oracle_fraction")
     print(f"done in {run['total_wall_s']:.0f} s: {args.out or f'runs/{args.algo}'}/{run['model']}"

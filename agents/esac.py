@@ -670,18 +670,59 @@ def is_esac_file(path: str | Path) -> bool:
         return False
     if p.suffix == ".pt":
         return True
-    return zipfile.is_zipfile(p) and "data" not in zipfile.ZipFile(p).namelist()
+    if not zipfile.is_zipfile(p):
+        return False
+    with zipfile.ZipFile(p) as z:
+        return "data" not in z.namelist()
+
+
+def _read_blob(path: Path) -> dict[str, Any]:
+    """The saved dictionary of an ESAC model: tensors and strings only (``weights_only``)."""
+    torch = _torch()
+    if not path.is_file():
+        raise FileNotFoundError(f"no ESAC model at {path}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a damaged file
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise ValueError(f"{path} is not a readable ESAC model (a torch file written by "
+                         f"train.py --algo esac): {type(exc).__name__}: {first}. Is it "
+                         f"truncated, or another kind of file?") from None
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise ValueError(f"{path} is not an ESAC model ({FORMAT})")
+    return blob
+
+
+def _read_meta(path: Path, blob: Mapping[str, Any]) -> dict[str, Any]:
+    """The metadata of an ESAC model, checked for what :func:`load` needs."""
+    try:
+        meta = json.loads(blob["meta"])
+    except (KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: its metadata is missing or not JSON ({exc})") from None
+    ok = (isinstance(meta, dict) and isinstance(meta.get("n_in"), int) and meta["n_in"] > 0
+          and isinstance(meta.get("hidden"), list)
+          and all(isinstance(h, int) and h > 0 for h in meta["hidden"])
+          and isinstance(meta.get("layout"), dict))
+    if not ok:
+        raise ValueError(f"{path}: its metadata lacks a valid n_in (int), hidden (list of int) "
+                         f"or layout (object); not an ESAC model train.py wrote")
+    return meta
 
 
 def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
-    """The predictor and the metadata of a saved ESAC model."""
-    torch = _torch()
-    blob = torch.load(path, map_location="cpu", weights_only=True)
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
-        raise ValueError(f"{path} is not an ESAC model ({FORMAT})")
-    meta = json.loads(blob["meta"])
+    """The predictor and the metadata of a saved ESAC model. Only tensors and strings are read
+    (``torch.load(weights_only=True)``); a damaged file or another kind of file is a ValueError
+    naming it."""
+    path = Path(path)
+    blob = _read_blob(path)
+    meta = _read_meta(path, blob)
     net = make_net(int(meta["n_in"]), meta["hidden"])
-    net.load_state_dict(blob["state_dict"])
+    try:
+        net.load_state_dict(blob.get("state_dict"))
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise ValueError(f"{path}: its weights do not fit the network its metadata describes "
+                         f"(n_in {meta['n_in']}, hidden {meta['hidden']}): {first}") from None
     net.eval()
     return ESACPredictor(net, meta["layout"], bool(meta.get("delay_input", False)),
                          meta.get("lookahead_s", ())), meta

@@ -248,14 +248,73 @@ class SB3Policy(LearnedPolicy):
         return (a | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
 
 
+class RunFileError(ValueError):
+    """A run directory's ``run.json`` is malformed, or names a file outside the directory."""
+
+
+#: ``run.json`` entries that name files of the run (relative to its directory)
+RUN_PATH_KEYS = ("model", "final_model", "checkpoint")
+#: other ``run.json`` entries whose type the readers rely on
+_RUN_TYPES = {"algo": str, "status": str, "observation_layout": dict, "env_config": dict,
+              "timesteps_done": int, "seed": int}
+
+
+def load_run_file(f: Path) -> dict[str, Any]:
+    """``run.json`` at ``f``, checked: a JSON object whose file entries are strings.
+    Raises :class:`RunFileError` naming the file and the entry."""
+    try:
+        run = json.loads(Path(f).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RunFileError(f"{f} cannot be read: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise RunFileError(f"{f} is not valid JSON ({exc.msg}, line {exc.lineno}): train.py "
+                           f"writes it whole; restore it, or train again") from None
+    if not isinstance(run, dict):
+        raise RunFileError(f"{f} holds a JSON {type(run).__name__}, expected an object (the "
+                           f"run record train.py writes)")
+    for key in RUN_PATH_KEYS:
+        if key in run and run[key] is not None and not isinstance(run[key], str):
+            raise RunFileError(f"{f}: {key!r} is {run[key]!r}; expected the name of a file in "
+                               f"the run directory (a string)")
+    for key, kind in _RUN_TYPES.items():
+        if key in run and run[key] is not None and (
+                not isinstance(run[key], kind) or isinstance(run[key], bool)):
+            raise RunFileError(f"{f}: {key!r} is {run[key]!r}; expected a JSON "
+                               f"{'object' if kind is dict else kind.__name__}")
+    return run
+
+
 def read_run(path: Path) -> dict[str, Any] | None:
-    """The ``run.json`` of a model file's run directory (the file's folder), if any."""
+    """The ``run.json`` of a run directory, or of a model file's directory (its folder), if any
+    (checked by :func:`load_run_file`)."""
+    path = Path(path)
     p = path if path.is_dir() else path.parent
     f = p / RUN_FILE
-    if f.is_file():
-        with open(f) as fh:
-            return json.load(fh)
-    return None
+    return load_run_file(f) if f.is_file() else None
+
+
+def run_member(run_dir: Path, name: Any, key: str = "model") -> Path:
+    """``run_dir / name`` for a file that ``run.json``'s ``key`` names, refused with a
+    :class:`RunFileError` unless it stays inside ``run_dir``: no absolute path, no ``..``, no
+    symbolic link leading out of it."""
+    from pathlib import PurePosixPath, PureWindowsPath
+
+    run_dir = Path(run_dir)
+    where = f"{run_dir / RUN_FILE}: {key!r}"
+    if not isinstance(name, str) or not name.strip() or "\x00" in name:
+        raise RunFileError(f"{where} is {name!r}; expected the name of a file in the run "
+                           f"directory")
+    if (PurePosixPath(name).is_absolute() or PureWindowsPath(name).is_absolute()
+            or PureWindowsPath(name).drive or ".." in PurePosixPath(name.replace("\\", "/")).parts):
+        raise RunFileError(f"{where} is {name!r}, a path outside the run directory; run.json may "
+                           f"only name files inside it (relative, without '..')")
+    f = run_dir / name
+    root = run_dir.resolve()
+    if not f.resolve().is_relative_to(root):
+        raise RunFileError(f"{where} is {name!r}, which leads to {f.resolve()} through a "
+                           f"symbolic link: outside the run directory {root}; pneugym loads only "
+                           f"files inside it")
+    return f
 
 
 # ------------------------------------------------------------------------------------------------
@@ -335,8 +394,9 @@ _LAZY: dict[str, Any] = {}
 
 
 def __getattr__(name: str):
-    """``agents.learned.AsymmetricActorCriticPolicy`` (and its extractor), built on first access,
-    so that pickled SB3 models find them by name."""
+    """``agents.learned.AsymmetricActorCriticPolicy`` (and its extractor), built on first access
+    (:mod:`agents.safe_load` names it for models trained with it; nothing is looked up by a
+    name read from a file)."""
     if name in ("AsymmetricActorCriticPolicy", "AsymmetricMlpExtractor"):
         if not _LAZY:
             _LAZY.update(_build_asymmetric_policy())

@@ -1,14 +1,13 @@
 """Build a policy by name for an environment, or load a trained one from disk."""
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 from typing import Any
 
 from .base import Policy
 from .baselines import ConventionalPolicy, EndStrokePolicy
 from .gaslaw import GasLawPolicy
-from .learned import LayoutMismatchError, SB3Policy, read_run
+from .learned import LayoutMismatchError, SB3Policy, read_run, run_member
 from .oracle import OraclePolicy
 
 BASELINES: dict[str, type[Policy]] = {
@@ -26,13 +25,14 @@ def make_policy(name: str, env, **kwargs: Any) -> Policy:
 
 
 def _model_file(p: Path) -> Path:
-    """A run directory's model (``run.json``'s ``model``), or the file itself."""
+    """A run directory's model (``run.json``'s ``model``, which must lie inside the directory),
+    or the file itself."""
     if p.is_dir():
         run = read_run(p)
         if run is None or "model" not in run:
             raise FileNotFoundError(f"{p} is a directory without a finished run.json (train.py "
                                     f"writes one); give the model file instead")
-        f = p / run["model"]
+        f = run_member(p, run["model"], "model")
         if not f.is_file():
             raise FileNotFoundError(f"{p}/run.json names {run['model']}, which does not exist")
         return f
@@ -45,7 +45,11 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     file, or in its run's ``run.json``) must match the environment's up to the history, else a
     :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` override the ESAC
     rule's parameters, or (``decision=``) an SB3 model's decision rule (default: the one train.py
-    tuned and saved with the model)."""
+    tuned and saved with the model).
+
+    Nothing in the file is unpickled (:mod:`agents.safe_load`): a model holding a pickled object
+    pneugym cannot replace by a plain value is refused (:class:`~agents.safe_load.
+    UnsafeModelError`)."""
     import zipfile
 
     p = Path(path)
@@ -61,24 +65,13 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     if not zipfile.is_zipfile(f):
         raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
                          f"(.pt)")
-    from stable_baselines3 import A2C, DQN, PPO
+    from .safe_load import ALGOS, load_sb3
 
-    algos = {"ppo": PPO, "dqn": DQN, "a2c": A2C}
-    order = [algos[run["algo"]]] if run and run.get("algo") in algos else [PPO, DQN, A2C]
-    errors = []
-    for algo in order:
-        try:
-            with warnings.catch_warnings():  # a DQN saved with n-step returns says so on load
-                warnings.filterwarnings("ignore", message=".*n_steps=.*is ignored")
-                model = algo.load(f, device="cpu")
-        except Exception as exc:  # noqa: BLE001 - try the next algorithm, report all
-            errors.append(f"{algo.__name__}: {exc}")
-            continue
-        model_layout = model.__dict__.get("pneugym_layout") or (run or {}).get(
-            "observation_layout")
-        decision = kwargs.get("decision") or model.__dict__.get("pneugym_decision")
-        return SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
-    raise ValueError(f"could not load {path} as PPO, DQN or A2C: " + "; ".join(errors))
+    algo = (run or {}).get("algo")
+    model = load_sb3(f, algo if algo in ALGOS else None, obs_size=int(layout["size"]))
+    model_layout = model.__dict__.get("pneugym_layout") or (run or {}).get("observation_layout")
+    decision = kwargs.get("decision") or model.__dict__.get("pneugym_decision")
+    return SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
 
 
 __all__ = ["BASELINES", "make_policy", "load_policy", "SB3Policy", "LayoutMismatchError"]

@@ -191,3 +191,47 @@ def test_save_load_roundtrip_and_refusal(tmp_path):
     with pytest.raises(LayoutMismatchError, match="observe_params"):
         esac.load_policy(tmp_path / "m.pt", CutOffVectorEnv(
             num_envs=1, history=2, observe_params=True).observation_layout())
+
+
+class _Marker:
+    """Unpickling this creates ``path``."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_damaged_or_foreign_files_are_named(tmp_path):
+    """A truncated model, another file renamed .pt, a torch file of something else, a pickled
+    object (never unpickled), bad metadata, weights of another network: a ValueError naming
+    the file, never torch's own traceback."""
+    import json
+
+    pred = _predictor()
+    meta = {"n_in": 14, "hidden": [8], "layout": pred.layout}
+    esac.save(tmp_path / "m.pt", pred.net, meta)
+    raw = (tmp_path / "m.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(raw[: len(raw) // 2])
+    (tmp_path / "text.pt").write_text("hello")
+    torch.save({"format": esac.FORMAT, "x": _Marker(tmp_path / "ran")}, tmp_path / "evil.pt")
+    for name in ("cut.pt", "text.pt", "evil.pt"):
+        with pytest.raises(ValueError, match=f"{name} is not a readable ESAC model"):
+            esac.load(tmp_path / name)
+    assert not (tmp_path / "ran").exists()
+    torch.save([1, 2], tmp_path / "list.pt")
+    with pytest.raises(ValueError, match="list.pt is not an ESAC model"):
+        esac.load(tmp_path / "list.pt")
+    torch.save({"format": esac.FORMAT, "state_dict": {}, "meta": "{"}, tmp_path / "meta.pt")
+    with pytest.raises(ValueError, match="meta.pt: its metadata is missing or not JSON"):
+        esac.load(tmp_path / "meta.pt")
+    torch.save({"format": esac.FORMAT, "state_dict": {}, "meta": json.dumps({"n_in": "x"})},
+               tmp_path / "meta2.pt")
+    with pytest.raises(ValueError, match="meta2.pt: its metadata lacks a valid n_in"):
+        esac.load(tmp_path / "meta2.pt")
+    esac.save(tmp_path / "other.pt", pred.net, {**meta, "hidden": [16]})
+    with pytest.raises(ValueError, match="other.pt: its weights do not fit the network"):
+        esac.load(tmp_path / "other.pt")
+    with pytest.raises(FileNotFoundError, match="no ESAC model at"):
+        esac.load(tmp_path / "missing.pt")

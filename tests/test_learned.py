@@ -137,12 +137,13 @@ def test_sb3_hazard_rule():
 
 def test_asymmetric_actor_ignores_privileged_features():
     """The privileged critic's policy: the actor reads only the public columns, the critic all;
-    it saves and loads with PPO.load and runs in an environment without privileged features
+    it saves and loads (agents.safe_load: nothing unpickled) and runs in an environment without privileged features
     (zeros are fed), while a plain model with privileged features is still refused there."""
     import torch
     from stable_baselines3 import PPO
 
     from agents.learned import AsymmetricActorCriticPolicy, SB3Policy
+    from agents.safe_load import load_sb3
     from pneugym.envs.sb3 import CutOffVecEnv
 
     venv = CutOffVecEnv(num_envs=2, history=2, observe_params=True)
@@ -168,7 +169,7 @@ def test_asymmetric_actor_ignores_privileged_features():
     import tempfile
     with tempfile.TemporaryDirectory() as d:
         ppo.save(f"{d}/m.zip")
-        loaded = PPO.load(f"{d}/m.zip", device="cpu")
+        loaded = load_sb3(f"{d}/m.zip", "ppo")
     assert type(loaded.policy).__name__ == "AsymmetricActorCriticPolicy"
     assert loaded.policy.actor_inputs == n_pub
     # in a public, history-1 environment: zeros for the privileged columns

@@ -1,7 +1,11 @@
 """train.py: smoke runs of every algorithm (a few hundred steps): run directory, checkpoints,
 resume, loading through agents.registry into evaluate.py, and the refusals."""
 import json
+import shutil
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -159,3 +163,262 @@ def test_choose_decision_prefers_saving_within_tolerance():
     with pytest.raises(ValueError, match="prefer_saving_within"):
         train.choose_decision(rows, -1.0)
     assert train.decision_grids({"rule": "quantile", "grid": [0.5]}) == {"quantile": [0.5]}
+
+
+# ------------------------------------------------------------------------------------------------
+# runs are never lost
+# ------------------------------------------------------------------------------------------------
+def _small(algo, root):
+    return SMALL[algo] + [f"cache_dir={root / 'cache'}"]
+
+
+def test_a_run_is_never_overwritten(runs, tmp_path, capsys):
+    d = tmp_path / "ppo"
+    shutil.copytree(runs["ppo"], d)
+    before = (d / "best_model.zip").read_bytes()
+    with pytest.raises(ValueError, match=r"holds a ppo run \(finished\): continue it with "
+                                         r"--resume, start it over with --force"):
+        train.train("ppo", d, timesteps=256, seed=1, progress=False, overrides=_small("ppo", d))
+    with pytest.raises(SystemExit):
+        train.main(["--algo", "dqn", "--out", str(d), "--timesteps", "64"])
+    assert "holds a ppo run" in capsys.readouterr().err
+    assert (d / "best_model.zip").read_bytes() == before
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=r"other is not empty \(1 entries: notes.txt\) and "
+                                         r"holds no run.json"):
+        train.train("ppo", other, timesteps=256, seed=1, progress=False,
+                    overrides=_small("ppo", d))
+    # --force starts over: says what it removes, keeps what train.py did not write
+    (d / "notes.txt").write_text("mine")
+    train.train("ppo", d, timesteps=256, seed=2, force=True, progress=False,
+                overrides=_small("ppo", tmp_path))
+    out = capsys.readouterr().out
+    assert "removed the previous run's" in out and "best_model.zip" in out
+    assert "checkpoints/" in out and "kept notes.txt" in out
+    run = json.loads((d / "run.json").read_text())
+    assert run["seed"] == 2 and run["status"] == "finished" and run["timesteps_done"] == 256
+    assert len(run["validation"]) == 1 and not (d / "progress.1.csv").exists()
+    assert (d / "notes.txt").read_text() == "mine"
+    with pytest.raises(ValueError, match="give one"):
+        train.train("ppo", d, resume=True, force=True, progress=False)
+
+
+def test_resume_needs_something_to_resume(runs, tmp_path):
+    def resume(algo, d):
+        train.train(algo, d, timesteps=1024, seed=1, resume=True, progress=False,
+                    overrides=_small(algo, tmp_path))
+
+    with pytest.raises(ValueError, match="nothing to resume in .*none: the folder does not "
+                                         "exist. Start a new run without --resume"):
+        resume("ppo", tmp_path / "none")
+    assert not (tmp_path / "none").exists()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="nothing to resume .*it has no run.json"):
+        resume("ppo", tmp_path / "empty")
+    with pytest.raises(ValueError, match="ESAC trains in one piece and keeps no checkpoints"):
+        resume("esac", runs["esac"])
+    with pytest.raises(ValueError, match="holds a ppo run, not dqn"):
+        resume("dqn", runs["ppo"])
+    d = tmp_path / "ppo"
+    shutil.copytree(runs["ppo"], d)
+    run = json.loads((d / "run.json").read_text())
+    (d / "run.json").write_text(json.dumps({**run, "checkpoint": "checkpoints/gone.zip"}))
+    with pytest.raises(ValueError, match="names the checkpoint checkpoints/gone.zip, which does "
+                                         "not exist"):
+        resume("ppo", d)
+    del run["checkpoint"]
+    (d / "run.json").write_text(json.dumps(run))
+    with pytest.raises(ValueError, match="records no checkpoint"):
+        resume("ppo", d)
+    assert json.loads((d / "run.json").read_text()) == run  # untouched
+
+
+def test_out_must_be_a_folder_before_anything_runs(tmp_path, monkeypatch, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+
+    def never(*args, **kwargs):
+        raise AssertionError("training started")
+
+    monkeypatch.setattr(train, "train_sb3", never)
+    monkeypatch.setattr(train, "_threads", never)
+    from pneugym.outputs import OutputError
+    with pytest.raises(OutputError, match=f"run folder .--out. {f} exists and is not a folder"):
+        train.train("ppo", f, progress=False)
+    with pytest.raises(SystemExit):
+        train.main(["--algo", "ppo", "--out", str(f)])
+    assert "is not a folder" in capsys.readouterr().err
+    assert f.read_text() == "x"
+
+
+def _hook_training(monkeypatch, hook):
+    """Run ``hook(callback)`` at every training step (through the progress bar callback)."""
+    real = train._sb3_parts
+
+    def parts():
+        P = real()
+
+        class Hooked(P["ProgressBar"]):
+            def _on_step(self):
+                hook(self)
+                return super()._on_step()
+
+        P["ProgressBar"] = Hooked
+        return P
+
+    monkeypatch.setattr(train, "_sb3_parts", parts)
+
+
+def _csv_rows(f: Path) -> list[dict[str, str]]:
+    import csv
+
+    with open(f) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_sigterm_checkpoints_and_resume_continues(tmp_path, monkeypatch):
+    """SIGTERM (delivered in-process, to the real handler) during training: the run stops at the
+    next step with a checkpoint and status "interrupted", the previous handler is back; --resume
+    continues from it with the config's schedules (a linear learning rate, a clip range) and
+    trains."""
+    from agents.safe_load import load_sb3
+
+    d = tmp_path / "ppo"
+    ov = _small("ppo", tmp_path) + ["algo.learning_rate=lin_0.001", "algo.clip_range=0.15",
+                                    "privileged_critic=false"]
+    before = signal.getsignal(signal.SIGTERM)
+
+    def hook(cb):
+        if cb.num_timesteps >= 256 and not fired:
+            fired.append(cb.num_timesteps)
+            assert signal.getsignal(signal.SIGTERM) is not before, "no handler installed"
+            signal.raise_signal(signal.SIGTERM)
+
+    fired: list[int] = []
+    _hook_training(monkeypatch, hook)
+    with pytest.raises(train.TrainingInterrupted, match="SIGTERM after 256 timesteps"):
+        train.train("ppo", d, timesteps=768, seed=1, progress=False, overrides=ov)
+    assert signal.getsignal(signal.SIGTERM) is before
+    run = json.loads((d / "run.json").read_text())
+    assert run["status"] == "interrupted" and run["timesteps_done"] == 256
+    assert run["interrupted"]["signal"] == "SIGTERM"
+    assert run["checkpoint"] == run["interrupted"]["checkpoint"] == "checkpoints/ckpt_000000256.zip"
+    ckpt = load_sb3(d / run["checkpoint"], "ppo")
+    assert ckpt.num_timesteps == 256
+    assert not list(d.rglob("*.tmp*"))
+    with pytest.raises(ValueError, match=r"interrupted at 256 timesteps\): continue it with "
+                                         r"--resume"):
+        train.train("ppo", d, timesteps=768, seed=1, progress=False, overrides=ov)
+    monkeypatch.undo()
+    train.train("ppo", d, timesteps=768, seed=1, resume=True, progress=False, overrides=ov)
+    run = json.loads((d / "run.json").read_text())
+    assert run["status"] == "finished" and run["timesteps_done"] == 768
+    assert run["interruptions"][0]["signal"] == "SIGTERM" and "interrupted" not in run
+    rows = [r for r in _csv_rows(d / "progress.csv") if r.get("train/learning_rate")]
+    # the update at 512 of 768 steps (the last one's values are never dumped): the config's
+    # lr = 1e-3 * (1 - 512 / 768), not SB3's default 3e-4; its clip range 0.15, not 0.2
+    lrs = [float(r["train/learning_rate"]) for r in rows]
+    assert lrs == pytest.approx([1e-3 / 3], abs=1e-12)
+    assert {float(r["train/clip_range"]) for r in rows} == {0.15}
+    final = load_sb3(d / "model.zip", "ppo")
+    moved = [not np.allclose(a, b) for a, b in zip(
+        ckpt.policy.state_dict().values(), final.policy.state_dict().values())]
+    assert any(moved)  # the resumed run trained
+
+
+def test_keyboard_interrupt_keeps_a_checkpoint(tmp_path, monkeypatch):
+    """Ctrl-C raising inside training (no graceful stop): the weights so far are checkpointed."""
+    from agents.registry import load_policy
+
+    def hook(cb):
+        if cb.num_timesteps >= 300:
+            raise KeyboardInterrupt
+
+    _hook_training(monkeypatch, hook)
+    d = tmp_path / "ppo"
+    with pytest.raises(train.TrainingInterrupted, match="SIGINT after 300 timesteps"):
+        train.train("ppo", d, timesteps=768, seed=1, progress=False,
+                    overrides=_small("ppo", tmp_path))
+    run = json.loads((d / "run.json").read_text())
+    assert run["status"] == "interrupted" and run["interrupted"]["signal"] == "SIGINT"
+    assert run["checkpoint"] == "checkpoints/ckpt_000000300.zip"
+    pol = load_policy(d / run["checkpoint"], CutOffVectorEnv(num_envs=1))
+    assert pol.model.num_timesteps == 300
+
+
+def test_sigterm_to_a_training_process(tmp_path):
+    """A real ``python train.py`` process: SIGTERM once it has a checkpoint; it exits 143, its
+    run.json says interrupted, and --resume finishes the run."""
+    d = tmp_path / "ppo"
+    ov = _small("ppo", tmp_path)
+    cmd = [sys.executable, str(Path(train.__file__)), "--algo", "ppo", "--out", str(d),
+           "--timesteps", "100000", "--seed", "1", "--no-progress"]
+    for o in ov:
+        cmd += ["--set", o]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            f = d / "run.json"
+            if f.is_file() and "checkpoint" in json.loads(f.read_text()):
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "--resume" in err
+    run = json.loads((d / "run.json").read_text())
+    assert run["status"] == "interrupted" and run["interrupted"]["signal"] == "SIGTERM"
+    done = run["timesteps_done"]
+    assert 256 <= done < 100000 and (d / run["checkpoint"]).is_file()
+    train.train("ppo", d, timesteps=done + 64, seed=1, resume=True, progress=False,
+                overrides=ov)
+    run = json.loads((d / "run.json").read_text())
+    assert run["status"] == "finished" and run["timesteps_done"] >= done + 64
+
+
+def test_dqn_resume_restores_the_replay_buffer_exactly(tmp_path):
+    from agents.safe_load import REPLAY_ARRAYS
+
+    d = tmp_path / "dqn"
+    ov = _small("dqn", tmp_path)
+    train.train("dqn", d, timesteps=256, seed=1, progress=False, overrides=ov)
+    run = json.loads((d / "run.json").read_text())
+    with np.load(train.replay_file(d / run["checkpoint"])) as z:
+        old = dict(z)
+    train.train("dqn", d, timesteps=512, seed=1, resume=True, progress=False, overrides=ov)
+    run = json.loads((d / "run.json").read_text())
+    with np.load(train.replay_file(d / run["checkpoint"])) as z:
+        new = dict(z)
+    k = int(old["pos"])
+    assert k == 256 // 4 and int(new["pos"]) == 512 // 4
+    for name in REPLAY_ARRAYS:
+        np.testing.assert_array_equal(new[name][:k], old[name][:k])
+    assert np.abs(new["observations"][k:2 * k]).sum() > 0  # new transitions follow them
+    assert not list(d.rglob("*.pkl"))
+
+
+def test_sigterm_interrupts_esac_at_once(tmp_path, monkeypatch):
+    """ESAC has no checkpoints: the first signal stops it at once, and run.json says so."""
+    before = signal.getsignal(signal.SIGTERM)
+
+    def esac_run(*args, **kwargs):
+        assert signal.getsignal(signal.SIGTERM) is not before, "no handler installed"
+        signal.raise_signal(signal.SIGTERM)
+        raise AssertionError("the signal did not stop training")
+
+    monkeypatch.setattr(train, "train_esac", esac_run)
+    with pytest.raises(train.TrainingInterrupted, match="SIGTERM"):
+        train.train("esac", tmp_path / "esac", progress=False, overrides=_small("esac", tmp_path))
+    assert signal.getsignal(signal.SIGTERM) is before
+    run = json.loads((tmp_path / "esac" / "run.json").read_text())
+    assert run["status"] == "interrupted" and run["interrupted"]["signal"] == "SIGTERM"
+    with pytest.raises(ValueError, match="ESAC trains in one piece"):
+        train.train("esac", tmp_path / "esac", resume=True, progress=False)
