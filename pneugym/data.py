@@ -14,17 +14,20 @@ the file, the row (CSV line) or key, and what is wrong. Nothing half-read is ret
 from __future__ import annotations
 
 import csv
+import difflib
 import io
+import itertools
 import json
 import math
 import numbers
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-from .params import RigParams
+from .params import RigParams, did_you_mean
 from .plant import Plant
 
 FORMAT = "pneugym-measurement/1"
@@ -33,27 +36,110 @@ OPTIONAL_COLUMNS = ("p_supply", "mdot_supply", "T_drive")
 PRESSURE_COLUMNS = ("p_drive", "p_exhaust", "p_supply")
 #: Absolute pressures outside this range [Pa] are refused (bar or gauge by mistake).
 PRESSURE_RANGE_PA = (1e3, 2e6)
+#: Pressures below this fraction of the run's ambient pressure are refused (gauge by mistake).
+GAUGE_FRACTION = 0.5
 #: Drive temperatures outside this range [K] are refused (°C by mistake).
 TEMPERATURE_RANGE_K = (150.0, 500.0)
 #: Relative tolerance on the sampling step (uniform sampling) and on ``sample_rate_hz``.
 SAMPLING_TOLERANCE = 0.01
+#: Coarsest sampling step [s] accepted (20 Hz): slower sampling cannot resolve a stroke, and a
+#: step of 1 usually means ``t`` in ms by mistake.
+MAX_SAMPLE_STEP_S = 0.05
 #: Positions may exceed [0, stroke] by this fraction of the stroke (sensor noise, offsets).
 POSITION_TOLERANCE = 0.05
+#: CSV rows converted at a time (streamed reading keeps memory to the arrays it returns).
+CSV_CHUNK_ROWS = 16384
 
-#: Top-level JSON keys that must be finite numbers, with their check.
-_JSON_NUMBERS = {
-    "supply_pressure_gauge_pa": (lambda v: 1e3 <= v <= 1.9e6,
-                                 "in [1e3, 1.9e6] Pa gauge (bar by mistake?)"),
-    "load_mass_kg": (lambda v: 0.0 <= v <= 1e4, "in [0, 1e4] kg"),
-    "ambient_pressure_pa": (lambda v: 5e4 <= v <= 1.2e5, "in [5e4, 1.2e5] Pa absolute"),
-    "ambient_temperature_k": (lambda v: 200.0 <= v <= 400.0, "in [200, 400] K (°C by mistake?)"),
-    "sample_rate_hz": (lambda v: 0.0 < v <= 1e7, "> 0 Hz"),
+
+@dataclass(frozen=True)
+class Plausible:
+    """Plausible range of a JSON number and the unit mistakes that explain a value outside it.
+
+    ``mistakes``: ``(unit, size in SI)``; a value ``v`` outside ``[lo, hi]`` for which
+    ``v * size`` is inside is reported as "``unit`` given as ``self.unit``?" (the candidate
+    nearest to ``typical`` on a log scale wins). ``lo_open``: ``lo`` itself is refused."""
+
+    lo: float
+    hi: float
+    what: str
+    unit: str  # SI unit of the key ("" for a dimensionless factor)
+    typical: float
+    mistakes: tuple[tuple[str, float], ...] = ()
+    lo_open: bool = False
+    hint: str = ""  # the likely mistake when no unit conversion explains the value
+
+    def ok(self, v: float) -> bool:
+        return (v > self.lo if self.lo_open else v >= self.lo) and v <= self.hi
+
+    def problem(self, v: float) -> str:
+        """Why ``v`` is refused, with the likely mistake."""
+        u = f" {self.unit}" if self.unit else ""
+        lo = f"{self.lo:g} (excluded)" if self.lo_open else f"{self.lo:g}"
+        msg = f"{v:g}{u} is not a plausible {self.what} (expected {lo} to {self.hi:g}{u})"
+        fits = [(abs(math.log(v * size / self.typical)), unit, v * size)
+                for unit, size in self.mistakes if v > 0 and self.ok(v * size)]
+        if fits:
+            _, unit, conv = min(fits)
+            if self.unit:
+                return f"{msg}; {unit} given as {self.unit}? ({conv:.4g} {self.unit} = {v:.4g} {unit})"
+            return f"{msg}; percent given as a fraction? ({conv:.4g} = {v:.4g} %)"
+        if self.hint:
+            return f"{msg}; {self.hint}"
+        return msg + (f"; check the unit ({self.unit})" if self.unit else "")
+
+
+_LENGTH = (("mm", 1e-3), ("cm", 1e-2))
+_AREA = (("mm²", 1e-6), ("cm²", 1e-4))
+_VOLUME = (("cm³", 1e-6), ("litres", 1e-3), ("mm³", 1e-9))
+_FRACTION = (("%", 1e-2),)
+_PRESSURE = (("bar", 1e5), ("kPa", 1e3), ("psi", 6894.757), ("MPa", 1e6))
+
+#: Plausible ranges of the JSON numbers (SI), generous on purpose: any real pneumatic cylinder
+#: rig meets them (bores 2.5-500 mm, strokes 1 mm-5 m, tubes 0.5-80 mm, orifices 1e-3-5000
+#: mm², dead volumes 1 mm³-20 L, valve delays up to 2 s, friction up to 1e5 N), so a value
+#: outside is a unit mistake, named in the refusal. The ranges are at least as tight as those
+#: of :class:`~pneugym.params.RigParams`, so a value out of range is refused here, naming this
+#: file and key; relations between keys (rod < bore, cushion < half the stroke) are left to
+#: RigParams, whose refusal is reported with the file. Keys: top level, ``rig.KEY`` and
+#: ``rig.friction.KEY``.
+PLAUSIBLE: dict[str, Plausible] = {
+    "supply_pressure_gauge_pa": Plausible(1e4, 1.9e6, "supply pressure (gauge)", "Pa", 2.5e5, _PRESSURE),
+    "load_mass_kg": Plausible(0.0, 1e4, "payload", "kg", 10.0),
+    "ambient_pressure_pa": Plausible(5e4, 1.2e5, "ambient pressure (absolute)", "Pa", 101325.0,
+                                     (("bar", 1e5), ("kPa", 1e3), ("mbar", 1e2), ("hPa", 1e2))),
+    "ambient_temperature_k": Plausible(200.0, 400.0, "ambient temperature", "K", 293.15,
+                                       hint="°C given as K? (20 °C = 293.15 K)"),
+    "sample_rate_hz": Plausible(0.0, 1e7, "sample rate", "Hz", 1000.0, (("kHz", 1e3),), lo_open=True),
+    "rig.bore_m": Plausible(2.5e-3, 0.5, "bore", "m", 0.125, _LENGTH),
+    "rig.rod_m": Plausible(0.0, 0.3, "rod diameter", "m", 0.032, _LENGTH),
+    "rig.stroke_m": Plausible(1e-3, 5.0, "stroke", "m", 0.18, _LENGTH),
+    "rig.dead_volume_m3": Plausible(1e-9, 0.02, "dead volume", "m³", 2.4e-4, _VOLUME),
+    "rig.line_length_m": Plausible(1e-3, 50.0, "line length", "m", 1.0, _LENGTH),
+    "rig.line_diameter_m": Plausible(5e-4, 0.08, "line inner diameter", "m", 0.005, _LENGTH),
+    "rig.valve_area_m2": Plausible(1e-9, 5e-3, "valve orifice area", "m²", 2e-5, _AREA),
+    "rig.port_area_m2": Plausible(1e-9, 5e-3, "port orifice area", "m²", 2e-5, _AREA),
+    "rig.exhaust_area_m2": Plausible(1e-9, 5e-3, "exhaust orifice area", "m²", 2e-5, _AREA),
+    "rig.cushion_length_m": Plausible(0.0, 0.2, "cushion length", "m", 0.015, _LENGTH),
+    "rig.cushion_factor_drive": Plausible(0.0, 1.0, "cushion area factor", "", 0.3, _FRACTION, lo_open=True),
+    "rig.cushion_factor_exhaust": Plausible(0.0, 1.0, "cushion area factor", "", 0.08, _FRACTION, lo_open=True),
+    "rig.discharge_coefficient": Plausible(0.0, 1.0, "discharge coefficient", "", 0.72, _FRACTION, lo_open=True),
+    "rig.valve_delay_s": Plausible(0.0, 2.0, "valve delay", "s", 0.185, (("ms", 1e-3),)),
+    "rig.moving_mass_extra_kg": Plausible(0.0, 2000.0, "moving mass besides the payload", "kg", 1.0),
+    "rig.friction.static_n": Plausible(0.0, 1e5, "breakaway friction", "N", 359.0),
+    "rig.friction.coulomb_n": Plausible(0.0, 1e5, "Coulomb friction", "N", 126.0),
+    "rig.friction.viscous_n_s_per_m": Plausible(0.0, 1e6, "viscous friction", "N s/m", 1557.0),
 }
+#: Top-level JSON keys the format defines (others are kept and ignored unless they look like a
+#: misspelling of one of these).
+TOP_KEYS = ("format", "supply_pressure_gauge_pa", "load_mass_kg", "ambient_pressure_pa",
+            "ambient_temperature_k", "sample_rate_hz", "rig", "description")
 _RIG_KEYS = ("bore_m", "rod_m", "stroke_m", "dead_volume_m3", "line_length_m", "line_diameter_m",
              "valve_area_m2", "port_area_m2", "exhaust_area_m2", "cushion_length_m",
              "cushion_factor_drive", "cushion_factor_exhaust", "discharge_coefficient",
              "valve_delay_s", "moving_mass_extra_kg")
 _FRICTION_KEYS = ("static_n", "coulomb_n", "viscous_n_s_per_m")
+#: an unknown top-level key this similar (difflib ratio, lower case) to a known one is refused
+NEAR_MISS_RATIO = 0.75
 
 
 class MeasurementFormatError(ValueError):
@@ -82,6 +168,12 @@ class MeasuredRun:
     T_drive: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     source: Path | None = None
+    #: samples averaged into each row (1 = as measured; > 1: a block-averaged run, see
+    #: :mod:`pneugym.discrepancy.prepare`; its ``valve`` is the fraction of the block commanded)
+    block: int = 1
+    #: valve commands ``(time_s, value)`` when the ``valve`` column cannot carry them exactly
+    #: (a block-averaged run); ``None``: from the ``valve`` column
+    commands: tuple[tuple[float, int], ...] | None = None
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -106,6 +198,8 @@ class MeasuredRun:
     def schedule(self) -> list[tuple[float, int]]:
         """Valve commands ``(time_s, value)`` for :meth:`pneugym.plant.Plant.run`: the first
         sample's command (at ``max(t0, 0)``) and every change, at the sample where it is seen."""
+        if self.commands is not None:
+            return [(float(t), int(v)) for t, v in self.commands]
         v = self.valve.astype(int)
         out = [(max(float(self.t[0]), 0.0), int(v[0]))]
         for i in np.flatnonzero(np.diff(v)) + 1:
@@ -120,7 +214,7 @@ class MeasuredRun:
             raise MeasurementFormatError(f"{self._where()}: the rig it describes is invalid: {exc}") from None
 
     def _where(self) -> str:
-        return str(self.source.with_suffix(".json")) if self.source else f"run {self.name!r}"
+        return str(_with_ext(self.source, ".json")) if self.source else f"run {self.name!r}"
 
 
 # ------------------------------------------------------------------------------------------
@@ -131,14 +225,38 @@ def _stem(path: str | Path) -> Path:
     return p.with_suffix("") if p.suffix.lower() in (".csv", ".json") else p
 
 
+def _with_ext(stem: Path, ext: str) -> Path:
+    return stem.with_name(stem.name + ext)
+
+
+def _find(stem: Path, ext: str) -> Path:
+    """``stem`` + ``ext`` with the extension matched case-insensitively (``NAME.CSV``,
+    ``NAME.Json``); the lower-case name when no such file exists."""
+    exact = _with_ext(stem, ext)
+    if exact.is_file():
+        return exact
+    try:
+        found = sorted(f for f in stem.parent.iterdir()
+                       if f.stem == stem.name and f.suffix.lower() == ext and f.is_file())
+    except OSError:
+        return exact
+    if len(found) > 1:
+        raise MeasurementFormatError(
+            f"{exact}: ambiguous, several files differ only in the case of the extension: "
+            f"{[f.name for f in found]}")
+    return found[0] if found else exact
+
+
 def read_run(path: str | Path, base: RigParams | None = None) -> MeasuredRun:
     """Read one run from ``NAME.csv``, ``NAME.json`` or the stem ``NAME``; strict validation.
 
-    ``base`` is the default rig that fills what the JSON does not give (for the position check
-    against the stroke). Raises :class:`MeasurementFormatError`.
+    Extensions are matched case-insensitively; a UTF-8 byte-order mark is accepted. ``base``
+    is the default rig that fills what the JSON does not give (for the position check against
+    the stroke, the ambient pressure). The CSV is streamed: memory is that of the arrays
+    returned. Raises :class:`MeasurementFormatError`, and no other exception for bad content.
     """
     stem = _stem(path)
-    csv_path, json_path = stem.with_suffix(".csv"), stem.with_suffix(".json")
+    csv_path, json_path = _find(stem, ".csv"), _find(stem, ".json")
     if not csv_path.is_file():
         raise MeasurementFormatError(f"{csv_path}: file not found (a run is NAME.csv + NAME.json)")
     if not json_path.is_file():
@@ -146,21 +264,21 @@ def read_run(path: str | Path, base: RigParams | None = None) -> MeasuredRun:
             f"{json_path}: file not found; the run {csv_path} is refused without its JSON")
     meta = _read_json(json_path)
     rig = _rig_from_meta(json_path, meta, base)
-    cols, extra = _read_csv(csv_path, rig.cylinder.stroke_m, meta.get("sample_rate_hz"))
+    cols, extra = _read_csv(csv_path, json_path, rig.cylinder.stroke_m, meta.get("sample_rate_hz"),
+                            rig.gas.ambient_pressure_pa)
     return MeasuredRun(name=stem.name, meta=meta, extra=extra, source=stem, **cols)
 
 
 def read_runs(paths: str | Path | Iterable[str | Path], base: RigParams | None = None) -> list[MeasuredRun]:
-    """Read runs from files/stems and folders (every ``*.csv`` in a folder, sorted by name).
-
-    Raises :class:`MeasurementFormatError` on the first bad run, or if nothing is found."""
+    """Read runs from files/stems and folders (every ``*.csv``, any case, in a folder, sorted by
+    name). Raises :class:`MeasurementFormatError` on the first bad run, or if nothing is found."""
     if isinstance(paths, (str, Path)):
         paths = [paths]
     runs: list[MeasuredRun] = []
     for p in paths:
         p = Path(p)
         if p.is_dir():
-            found = sorted(p.glob("*.csv"))
+            found = sorted(f for f in p.iterdir() if f.suffix.lower() == ".csv" and f.is_file())
             if not found:
                 raise MeasurementFormatError(f"{p}: folder holds no run (no NAME.csv)")
             runs += [read_run(f, base) for f in found]
@@ -177,71 +295,122 @@ def read_runs(paths: str | Path | Iterable[str | Path], base: RigParams | None =
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"),
+        meta = json.loads(path.read_text(encoding="utf-8-sig"),
                           parse_constant=lambda c: _raise(path, f"non-JSON constant {c}"))
     except json.JSONDecodeError as exc:
         raise MeasurementFormatError(f"{path}: not valid JSON: {exc}") from None
     except UnicodeDecodeError as exc:
         raise MeasurementFormatError(f"{path}: not UTF-8 text: {exc}") from None
+    except RecursionError:
+        raise MeasurementFormatError(f"{path}: not valid JSON: nested too deeply") from None
+    except OSError as exc:
+        raise MeasurementFormatError(f"{path}: cannot be read: {exc.strerror or exc}") from None
     if not isinstance(meta, dict):
         raise MeasurementFormatError(f"{path}: the top level must be a JSON object")
     fmt = meta.get("format")
     if fmt != FORMAT:
         raise MeasurementFormatError(f"{path}: key 'format' = {fmt!r}; expected {FORMAT!r}")
+    for key in meta:
+        near = None if key in TOP_KEYS else _near_miss(key, TOP_KEYS)
+        if near:
+            raise MeasurementFormatError(
+                f"{path}: key {key!r} is not a key of {FORMAT} (did you mean {near!r}?); unknown "
+                f"keys are ignored, so a misspelt one would be lost (rename it if it is a note)")
     if "supply_pressure_gauge_pa" not in meta:
         raise MeasurementFormatError(f"{path}: key 'supply_pressure_gauge_pa' is missing")
-    for key, (ok, what) in _JSON_NUMBERS.items():
-        if key in meta:
-            _check_number(path, key, meta[key], ok, what)
+    for key in TOP_KEYS:
+        if key in meta and key in PLAUSIBLE:
+            _check_plausible(path, key, meta[key])
     if "description" in meta and not isinstance(meta["description"], str):
         raise MeasurementFormatError(f"{path}: key 'description' must be a string")
     rig = meta.get("rig")
-    _check_section(path, "rig", rig, _RIG_KEYS)
+    _check_section(path, "rig", rig, _RIG_KEYS + ("friction",))
     if rig is not None:
         _check_section(path, "rig.friction", rig.get("friction"), _FRICTION_KEYS)
     return meta
 
 
+def _near_miss(key: str, known: Sequence[str]) -> str | None:
+    """The known key that the unknown ``key`` looks like a misspelling of, or ``None``. A key
+    extending a known one (``description_long``) is deliberate, not a near miss."""
+    k = key.strip().lower()
+    if any(k.startswith(n + "_") for n in known):
+        return None
+    score = {n: difflib.SequenceMatcher(None, k, n).ratio() for n in known}
+    best = max(score, key=score.__getitem__)
+    return best if score[best] >= NEAR_MISS_RATIO else None
+
+
 def _check_section(path: Path, name: str, section: Any, keys: Sequence[str]) -> None:
-    """An optional object whose known keys must be numbers >= 0 (SI)."""
+    """An optional object of known keys (an unknown one is a typo) with plausible numbers."""
     if section is None:
         return
     if not isinstance(section, dict):
         raise MeasurementFormatError(f"{path}: key {name!r} must be an object (or absent)")
-    for key in keys:
-        if key in section:
-            _check_number(path, f"{name}.{key}", section[key], lambda v: v >= 0.0, ">= 0")
+    for key, value in section.items():
+        if key not in keys:
+            raise MeasurementFormatError(
+                f"{path}: key '{name}.{key}' is not a {name} key{did_you_mean(key, keys)}; "
+                f"known: {', '.join(keys)}")
+        if key != "friction":
+            _check_plausible(path, f"{name}.{key}", value)
 
 
 def _raise(path: Path, msg: str):
     raise MeasurementFormatError(f"{path}: {msg}")
 
 
-def _check_number(path: Path, key: str, value: Any, ok, what: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-        raise MeasurementFormatError(f"{path}: key {key!r} = {value!r} must be a finite number")
-    if not ok(float(value)):
-        raise MeasurementFormatError(f"{path}: key {key!r} = {value!r} must be {what}")
+def _check_plausible(path: Path, key: str, value: Any) -> None:
+    """``value`` of JSON key ``key`` must be a finite number in its :data:`PLAUSIBLE` range."""
+    bad = isinstance(value, bool) or not isinstance(value, numbers.Real)
+    try:
+        v = math.nan if bad else float(value)
+    except OverflowError:  # an integer beyond float range
+        v = math.inf
+    if not math.isfinite(v):
+        raise MeasurementFormatError(f"{path}: key {key!r} = {value!r:.60} must be a finite number")
+    spec = PLAUSIBLE[key]
+    if not spec.ok(v):
+        raise MeasurementFormatError(f"{path}: key {key!r} = {value!r}: {spec.problem(v)}")
 
 
 def _rig_from_meta(path: Path, meta: Mapping[str, Any], base: RigParams | None) -> RigParams:
     try:
         return RigParams.from_measurement(meta, base)
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:
         raise MeasurementFormatError(f"{path}: the rig it describes is invalid: {exc}") from None
 
 
-def _read_csv(path: Path, stroke_m: float, rate_hz: float | None):
+def _read_csv(path: Path, json_path: Path, stroke_m: float, rate_hz: float | None,
+              ambient_pa: float):
+    """Stream the CSV in chunks of :data:`CSV_CHUNK_ROWS` rows; validate; return the columns."""
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            reader = csv.reader(fh)
+            try:
+                cols, extra = _parse_csv(path, reader)
+            except csv.Error as exc:
+                raise MeasurementFormatError(f"{path}: line {reader.line_num}: not CSV: {exc}") from None
     except UnicodeDecodeError as exc:
         raise MeasurementFormatError(f"{path}: not UTF-8 text: {exc}") from None
-    rows = list(csv.reader(io.StringIO(text)))
-    while rows and not any(c.strip() for c in rows[-1]):
-        rows.pop()  # trailing blank lines
-    if not rows:
-        raise MeasurementFormatError(f"{path}: empty file (expected a header row)")
-    header = [h.strip() for h in rows[0]]
+    except OSError as exc:
+        raise MeasurementFormatError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    _check_columns(path, json_path, cols, stroke_m, rate_hz, ambient_pa)
+    return {c: cols.get(c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}, extra
+
+
+def _blank(row: Sequence[str]) -> bool:
+    return not any(c.strip() for c in row)
+
+
+def _parse_csv(path: Path, reader) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    first = next(reader, None)
+    if first is None or _blank(first):
+        rest = next((k for k, row in enumerate(reader) if not _blank(row)), None)
+        if rest is None:
+            raise MeasurementFormatError(f"{path}: empty file (expected a header row)")
+        raise MeasurementFormatError(f"{path}: line 1 (header) is blank")
+    header = [h.strip() for h in first]
     for i, h in enumerate(header):
         if not h:
             raise MeasurementFormatError(f"{path}: line 1 (header): column {i + 1} has no name")
@@ -252,45 +421,74 @@ def _read_csv(path: Path, stroke_m: float, rate_hz: float | None):
     if missing:
         raise MeasurementFormatError(
             f"{path}: line 1 (header): missing required column(s) {missing}; has {header}")
-    body = rows[1:]
-    if len(body) < 2:
-        raise MeasurementFormatError(f"{path}: needs at least 2 samples, has {len(body)}")
     known = set(REQUIRED_COLUMNS) | set(OPTIONAL_COLUMNS)
-    raw: dict[str, list[str]] = {h: [] for h in header}
-    for k, row in enumerate(body):
-        if len(row) != len(header):
+    parts: dict[str, list] = {h: [] for h in header}
+    n = 0  # data rows accepted
+    blank_at: int | None = None  # line of the first of the trailing blank rows seen so far
+    while True:
+        block = list(itertools.islice(reader, CSV_CHUNK_ROWS))
+        if not block:
+            break
+        good, blank_at = _good_rows(path, block, len(header), n, blank_at)
+        if good:
+            for h, cells in zip(header, zip(*good)):
+                parts[h].append(_numeric(path, h, cells, n + 2) if h in known else cells)
+            n += len(good)
+    if n < 2:
+        raise MeasurementFormatError(f"{path}: needs at least 2 samples, has {n}")
+    # column by column, dropping each one's chunks: peak memory ~ the arrays + one column
+    cols = {h: np.concatenate(parts.pop(h)) for h in header if h in known}
+    extra = {h: _extra_column([c for cells in parts.pop(h) for c in cells]) for h in list(parts)}
+    return cols, extra
+
+
+def _good_rows(path: Path, block: list[list[str]], width: int, n: int,
+               blank_at: int | None) -> tuple[list[list[str]], int | None]:
+    """The rows of ``block`` (its first data line is ``n + 2``) before any blank row, and the
+    line of the first blank row (trailing blank rows are dropped). Refuses a row of the wrong
+    width and data after a blank row."""
+    k = 0
+    if blank_at is None:
+        bad = [k for k, row in enumerate(block) if len(row) != width]
+        if not bad:
+            return block, None
+        k = bad[0]
+        if not _blank(block[k]):
             raise MeasurementFormatError(
-                f"{path}: line {k + 2}: {len(row)} fields, the header has {len(header)}")
-        for h, cell in zip(header, row):
-            raw[h].append(cell.strip())
-    cols: dict[str, np.ndarray] = {}
-    for h in header:
-        if h in known:
-            cols[h] = _numeric_column(path, h, raw[h])
-    extra: dict[str, np.ndarray] = {}
-    for h in header:
-        if h not in known:
+                f"{path}: line {n + k + 2}: {len(block[k])} fields, the header has {width}")
+        blank_at = n + k + 2
+    if any(not _blank(row) for row in block[k:]):
+        raise MeasurementFormatError(
+            f"{path}: line {blank_at}: blank line inside the data (0 fields, the header has {width})")
+    return block[:k], blank_at
+
+
+def _numeric(path: Path, name: str, cells: Sequence[str], first_line: int) -> np.ndarray:
+    """Cells of a known column as floats; refuses text and NaN/inf naming the line."""
+    try:
+        out = np.fromiter(map(float, cells), float, count=len(cells))
+    except ValueError:
+        for k, c in enumerate(cells):
             try:
-                extra[h] = np.array([float(c) for c in raw[h]])
+                float(c)
             except ValueError:
-                extra[h] = np.array(raw[h], dtype=object)
-    _check_columns(path, cols, stroke_m, rate_hz)
-    return {c: cols.get(c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}, extra
-
-
-def _numeric_column(path: Path, name: str, cells: Sequence[str]) -> np.ndarray:
-    out = np.empty(len(cells))
-    for k, c in enumerate(cells):
-        try:
-            v = float(c)
-        except ValueError:
-            raise MeasurementFormatError(
-                f"{path}: line {k + 2}, column {name!r}: {c!r} is not a number") from None
-        if not math.isfinite(v):
-            raise MeasurementFormatError(
-                f"{path}: line {k + 2}, column {name!r}: {c!r} is not finite (NaN/inf)")
-        out[k] = v
+                raise MeasurementFormatError(
+                    f"{path}: line {first_line + k}, column {name!r}: {c.strip()!r:.60} is not a number") from None
+        raise
+    bad = np.flatnonzero(~np.isfinite(out))
+    if bad.size:
+        k = int(bad[0])
+        raise MeasurementFormatError(
+            f"{path}: line {first_line + k}, column {name!r}: {cells[k].strip()!r:.60} is not finite (NaN/inf)")
     return out
+
+
+def _extra_column(cells: list[str]) -> np.ndarray:
+    cells = [c.strip() for c in cells]
+    try:
+        return np.array([float(c) for c in cells])
+    except ValueError:
+        return np.array(cells, dtype=object)
 
 
 def _first_bad(path: Path, name: str, values: np.ndarray, bad: np.ndarray, what: str,
@@ -304,28 +502,22 @@ def _first_bad(path: Path, name: str, values: np.ndarray, bad: np.ndarray, what:
             f"{path}: line {k + first_sample + 2}, column {name!r}: {float(values[k])!r} {what}{more}")
 
 
-def _check_columns(path: Path, cols: dict[str, np.ndarray], stroke_m: float,
-                   rate_hz: float | None) -> None:
-    t = cols["t"]
-    dt = np.diff(t)
-    _first_bad(path, "t", t[1:], dt <= 0.0, "is not after the previous time (t must increase strictly)",
-               first_sample=1)
-    step = float(np.median(dt))
-    _first_bad(path, "t", t[1:], np.abs(dt - step) > SAMPLING_TOLERANCE * step,
-               f"breaks the uniform sampling (step {step:.6g} s, tolerance "
-               f"{SAMPLING_TOLERANCE:.0%})", first_sample=1)
-    if rate_hz is not None and abs(1.0 / step - rate_hz) > SAMPLING_TOLERANCE * rate_hz:
-        raise MeasurementFormatError(
-            f"{path}: column 't' is sampled at {1.0 / step:.6g} Hz but {path.with_suffix('.json')} "
-            f"key 'sample_rate_hz' says {rate_hz:.6g} Hz")
+def _check_columns(path: Path, json_path: Path, cols: dict[str, np.ndarray], stroke_m: float,
+                   rate_hz: float | None, ambient_pa: float) -> None:
+    with np.errstate(over="ignore", invalid="ignore"):
+        _check_time(path, json_path, cols["t"], rate_hz)
     v = cols["valve"]
     _first_bad(path, "valve", v, (v != 0.0) & (v != 1.0), "is not a valve command (0 or 1)")
     lo, hi = PRESSURE_RANGE_PA
+    p_min = GAUGE_FRACTION * ambient_pa
     for name in PRESSURE_COLUMNS:
         if name in cols:
             p = cols[name]
             _first_bad(path, name, p, (p < lo) | (p > hi),
                        f"is outside [{lo:g}, {hi:g}] Pa absolute (bar or gauge by mistake?)")
+            _first_bad(path, name, p, p < p_min,
+                       f"Pa is below {GAUGE_FRACTION:g} x the ambient pressure ({ambient_pa:g} Pa "
+                       f"absolute): gauge instead of absolute?")
     tol = POSITION_TOLERANCE * stroke_m
     x = cols["x"]
     _first_bad(path, "x", x, (x < -tol) | (x > stroke_m + tol),
@@ -337,13 +529,39 @@ def _check_columns(path: Path, cols: dict[str, np.ndarray], stroke_m: float,
                    f"is outside [{lo_t:g}, {hi_t:g}] K (°C by mistake?)")
 
 
+def _check_time(path: Path, json_path: Path, t: np.ndarray, rate_hz: float | None) -> None:
+    """Strictly increasing, uniformly sampled, at ``sample_rate_hz`` if given, at least 20 Hz."""
+    dt = np.diff(t)
+    _first_bad(path, "t", t[1:], ~(dt > 0.0), "is not after the previous time (t must increase strictly)",
+               first_sample=1)
+    step = float(np.median(dt))
+    _first_bad(path, "t", t[1:], np.abs(dt - step) > SAMPLING_TOLERANCE * step,
+               f"breaks the uniform sampling (step {step:.6g} s, tolerance "
+               f"{SAMPLING_TOLERANCE:.0%})", first_sample=1)
+    ms = f"; t in ms by mistake? ({step:.6g} ms = {step * 1e-3:.6g} s)"
+    if rate_hz is not None and not abs(1.0 / step - rate_hz) <= SAMPLING_TOLERANCE * rate_hz:
+        in_ms = abs(1e3 / step - rate_hz) <= SAMPLING_TOLERANCE * rate_hz
+        raise MeasurementFormatError(
+            f"{path}: column 't' is sampled at {1.0 / step:.6g} Hz but {json_path} key "
+            f"'sample_rate_hz' says {rate_hz:.6g} Hz{ms if in_ms else ''}")
+    if not step <= MAX_SAMPLE_STEP_S:
+        raise MeasurementFormatError(
+            f"{path}: lines 2-3, column 't': sampling step {step:.6g} s ({1.0 / step:.3g} Hz) is "
+            f"coarser than {MAX_SAMPLE_STEP_S:g} s ({1.0 / MAX_SAMPLE_STEP_S:g} Hz) and cannot "
+            f"resolve a stroke{ms}")
+
+
 # ------------------------------------------------------------------------------------------
 # writing
 # ------------------------------------------------------------------------------------------
 def write_run(run: MeasuredRun, path: str | Path) -> Path:
     """Write ``run`` as ``PATH.csv`` + ``PATH.json`` (``PATH`` a stem; a .csv/.json suffix is
     dropped). Floats are written with ``repr`` so that reading gives the same numbers back.
-    Returns the stem."""
+    Returns the stem. A block-averaged run (``run.block > 1``) is refused: its ``valve``
+    column is a fraction, not a command."""
+    if run.block != 1:
+        raise ValueError(f"run {run.name!r} is block-averaged (block = {run.block}); write the "
+                         f"run as measured")
     stem = _stem(path)
     stem.parent.mkdir(parents=True, exist_ok=True)
     cols = run.columns
@@ -354,10 +572,10 @@ def write_run(run: MeasuredRun, path: str | Path) -> Path:
     arrays = [cols[n] for n in names]
     for i in range(len(run)):
         w.writerow([_fmt(a[i]) for a in arrays])
-    stem.with_suffix(".csv").write_text(buf.getvalue(), encoding="utf-8")
+    _with_ext(stem, ".csv").write_text(buf.getvalue(), encoding="utf-8")
     meta = dict(run.meta)
     meta.setdefault("format", FORMAT)
-    stem.with_suffix(".json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n",
+    _with_ext(stem, ".json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n",
                                          encoding="utf-8")
     return stem
 
@@ -485,7 +703,7 @@ def thesis_protocol(params: RigParams, known: RigParams | None = None, *, t_end:
                              f"within {t_end} s; no early cut-off can be placed")
         early_cutoff_s = max(float(ref["t"][reached[0]]) - known.valve_delay_s - known.valve.ramp_s, 0.0)
     t_cut = round(early_cutoff_s / dt) * dt
-    kw = dict(t_end=t_end, sample_rate_hz=sample_rate_hz, noise=noise, known=known)
+    kw = {"t_end": t_end, "sample_rate_hz": sample_rate_hz, "noise": noise, "known": known}
     return [
         simulate_run(params, [(0.0, 1)], seed=seed, name=f"{prefix}conventional",
                      description="conventional", **kw),

@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from pneugym import Plant, thesis_rig
-from pneugym.data import (FORMAT, MeasuredRun, MeasurementFormatError, read_run, read_runs,
-                          simulate_run, thesis_protocol, write_run)
+from pneugym.data import (
+    FORMAT,
+    MeasuredRun,
+    MeasurementFormatError,
+    read_run,
+    read_runs,
+    simulate_run,
+    thesis_protocol,
+    write_run,
+)
 from pneugym.discrepancy.residuals import replay
 
 
@@ -78,13 +86,14 @@ def test_read_folder_sorted_and_unique_names(tmp_path):
         read_runs([tmp_path / "empty"])
 
 
-def test_unknown_columns_and_keys_are_kept_and_ignored(run_files):
+def test_unknown_columns_and_top_level_keys_are_kept_and_ignored(run_files):
     _rewrite_csv(run_files, lambda ls: [ls[0] + ",operator,temp_note"]
                  + [l + ",42,ok" for l in ls[1:]])
-    _rewrite_json(run_files, lambda m: m.update(lab="B12", rig={**m["rig"], "colour": "blue"}))
+    _rewrite_json(run_files, lambda m: m.update(lab="B12", operator="jo", description_long="x",
+                                                format_version=2))
     run = read_run(run_files)
     assert np.all(run.extra["operator"] == 42.0) and run.extra["temp_note"][0] == "ok"
-    assert run.meta["lab"] == "B12"
+    assert run.meta["lab"] == "B12" and "simulation" in run.meta  # the simulator's key is kept
     assert run.rig().cylinder.bore_m == 0.125
 
 
@@ -149,7 +158,7 @@ def test_value_refusals(run_files, column, factor, offset, pattern):
     (lambda m: m.pop("format"), r"key 'format'"),
     (lambda m: m.update(format="pneugym-measurement/2"), r"key 'format'.*pneugym-measurement/1"),
     (lambda m: m.pop("supply_pressure_gauge_pa"), r"supply_pressure_gauge_pa' is missing"),
-    (lambda m: m.update(supply_pressure_gauge_pa=2.5), r"supply_pressure_gauge_pa.*bar by mistake"),
+    (lambda m: m.update(supply_pressure_gauge_pa=2.5), r"supply_pressure_gauge_pa.*bar given as Pa"),
     (lambda m: m.update(load_mass_kg="10"), r"load_mass_kg.*finite number"),
     (lambda m: m.update(ambient_temperature_k=20.0), r"ambient_temperature_k.*°C"),
     (lambda m: m.update(sample_rate_hz=500.0), r"sampled at 1000 Hz.*sample_rate_hz.*500"),
@@ -239,3 +248,145 @@ def test_bad_export_arguments():
         simulate_run(thesis_rig(2.5), optional=("p_port",))
     with pytest.raises(ValueError, match="noise"):
         simulate_run(thesis_rig(2.5), noise={"pressure": 1.0})
+
+
+# -- plausibility of the JSON: the likely unit mistake is named -------------------------------------
+@pytest.mark.parametrize("key, value, pattern", [
+    ("stroke_m", 180, r"180 m is not a plausible stroke.*mm given as m\? \(0\.18 m = 180 mm\)"),
+    ("bore_m", 125, r"plausible bore.*mm given as m\? \(0\.125 m"),
+    ("rod_m", 32, r"rod diameter.*mm given as m"),
+    ("line_length_m", 1200, r"line length.*mm given as m\? \(1\.2 m"),
+    ("line_diameter_m", 5, r"line inner diameter.*mm given as m\? \(0\.005 m"),
+    ("valve_area_m2", 19.6, r"valve orifice area.*mm² given as m²\? \(1\.96e-05 m²"),
+    ("port_area_m2", 0.5, r"port orifice area.*cm² given as m²\? \(5e-05 m²"),
+    ("exhaust_area_m2", 0.0, r"exhaust orifice area \(expected 1e-09 to"),
+    ("dead_volume_m3", 50, r"dead volume.*cm³ given as m³\? \(5e-05 m³ = 50 cm³\)"),
+    ("dead_volume_m3", 0.05, r"dead volume.*litres given as m³\? \(5e-05 m³"),
+    ("cushion_length_m", 15, r"cushion length.*mm given as m\? \(0\.015 m"),
+    ("cushion_factor_drive", 30, r"cushion area factor.*percent given as a fraction\? \(0\.3 = 30 %\)"),
+    ("cushion_factor_exhaust", 0.0, r"expected 0 \(excluded\) to 1"),
+    ("discharge_coefficient", 72, r"discharge coefficient.*percent given as a fraction\? \(0\.72"),
+    ("valve_delay_s", 185, r"valve delay.*ms given as s\? \(0\.185 s = 185 ms\)"),
+    ("moving_mass_extra_kg", 5000, r"moving mass.*expected 0 to 2000 kg"),
+    ("friction.coulomb_n", -5, r"rig\.friction\.coulomb_n.*Coulomb friction \(expected 0 to"),
+    ("friction.viscous_n_s_per_m", 1e7, r"viscous friction"),
+])
+def test_implausible_rig_values_name_the_unit_mistake(run_files, key, value, pattern):
+    def edit(m):
+        section = m["rig"]
+        *outer, last = key.split(".")
+        for k in outer:
+            section = section[k]
+        section[last] = value
+    _rewrite_json(run_files, edit)
+    msg = _refused(run_files, re.escape(str(run_files.with_suffix(".json"))),
+                   re.escape(f"key 'rig.{key}' = {value!r}"), pattern)
+    assert "rig it describes is invalid" not in msg  # refused here, before RigParams
+
+
+@pytest.mark.parametrize("key, value, pattern", [
+    ("supply_pressure_gauge_pa", 36.0, r"psi given as Pa"),
+    ("supply_pressure_gauge_pa", 250.0, r"kPa given as Pa\? \(2\.5e\+05 Pa = 250 kPa\)"),
+    ("supply_pressure_gauge_pa", 5e3, r"expected 10000 to"),  # RigParams refuses < 1e4 too
+    ("ambient_pressure_pa", 1013.25, r"mbar given as Pa|hPa given as Pa"),
+    ("sample_rate_hz", 0.0, r"sample rate"),
+    pytest.param("load_mass_kg", 10**400, r"finite number", id="int-beyond-float"),
+    ("load_mass_kg", None, r"finite number"),
+])
+def test_implausible_top_level_values(run_files, key, value, pattern):
+    _rewrite_json(run_files, lambda m: m.update({key: value}))
+    _refused(run_files, re.escape(str(run_files.with_suffix(".json"))), f"key '{key}'", pattern)
+
+
+# -- key typos -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("edit, pattern", [
+    (lambda m: m["rig"].update(bore=0.1), r"key 'rig\.bore' is not a rig key \(did you mean 'bore_m'\?\)"),
+    (lambda m: m["rig"].update(stroke_mm=180), r"'rig\.stroke_mm'.*did you mean 'stroke_m'"),
+    (lambda m: m["rig"].update(colour="blue"), r"'rig\.colour' is not a rig key; known: bore_m"),
+    (lambda m: m["rig"]["friction"].update(coulomb=100), r"'rig\.friction\.coulomb'.*did you mean 'coulomb_n'"),
+    (lambda m: m.update(load_mass=10), r"key 'load_mass'.*did you mean 'load_mass_kg'"),
+    (lambda m: m.update(supply_pressure_gauge=2e5), r"did you mean 'supply_pressure_gauge_pa'"),
+    (lambda m: m.update(supply_pressure_bar=2.5), r"did you mean 'supply_pressure_gauge_pa'"),
+    (lambda m: m.update(Sample_Rate=1000), r"did you mean 'sample_rate_hz'"),
+])
+def test_key_typos_are_refused_with_the_nearest_name(run_files, edit, pattern):
+    _rewrite_json(run_files, edit)
+    _refused(run_files, re.escape(str(run_files.with_suffix(".json"))), pattern)
+
+
+# -- time in ms, gauge instead of absolute ---------------------------------------------------------
+def test_time_in_ms_is_refused(run_files):
+    _rewrite_csv(run_files, _scale_column("t", 1000.0))
+    _rewrite_json(run_files, lambda m: m.pop("sample_rate_hz"))
+    _refused(run_files, re.escape(str(run_files.with_suffix(".csv"))), r"column 't'",
+             r"step 1 s .*cannot resolve a stroke; t in ms by mistake\?")
+    _rewrite_json(run_files, lambda m: m.update(sample_rate_hz=1000))  # cross-checked: same hint
+    _refused(run_files, r"sampled at 1 Hz.*says 1000 Hz; t in ms by mistake\?")
+
+
+def test_slow_sampling_is_refused(tmp_path):
+    stem = write_run(simulate_run(thesis_rig(2.5), t_end=2.0, sample_rate_hz=10.0, noise=None),
+                     tmp_path / "slow")
+    _refused(stem, r"step 0\.1 s \(10 Hz\) is coarser than 0\.05 s")
+    stem = write_run(simulate_run(thesis_rig(2.5), t_end=0.5, sample_rate_hz=25.0, noise=None),
+                     tmp_path / "ok")
+    assert len(read_run(stem)) == 13
+
+
+def test_gauge_pressure_is_refused(run_files, clean_run):
+    # a gauge transducer with a +3 kPa offset: every value passes the 1 kPa absolute bound ...
+    assert (clean_run.p_drive - 101325.0 + 3000.0).min() > 1e3
+    _rewrite_csv(run_files, _scale_column("p_drive", 1.0, -101325.0 + 3000.0))
+    _refused(run_files, r"line 2, column 'p_drive'",
+             r"below 0\.5 x the ambient pressure \(101325 Pa absolute\): gauge instead of absolute\?")
+    # ... and the threshold follows the run's own ambient pressure: 41.3 kPa at rest is fine
+    # at 60 kPa ambient (a rig high in the mountains would be ~70 kPa)
+    _rewrite_csv(run_files, _scale_column("p_drive", 1.0, 101325.0 - 3000.0 - 60000.0))
+    _refused(run_files, r"column 'p_drive'.*gauge instead of absolute")
+    _rewrite_json(run_files, lambda m: m.update(ambient_pressure_pa=60000.0))
+    assert len(read_run(run_files)) == 601
+
+
+# -- files: case of the extension, BOM, dots in names, streamed reading ---------------------------
+def test_extensions_are_case_insensitive(tmp_path, run_files):
+    csv_p, json_p = run_files.with_suffix(".csv"), run_files.with_suffix(".json")
+    csv_p.rename(tmp_path / "clean.CSV")
+    json_p.rename(tmp_path / "clean.Json")
+    for p in (run_files, tmp_path / "clean.CSV", tmp_path / "clean.Json", tmp_path / "clean.csv"):
+        assert len(read_run(p)) == 601
+    assert [r.name for r in read_runs([tmp_path])] == ["clean"]
+    (tmp_path / "clean.JSON").write_text("{}")  # two JSONs differing in case only
+    _refused(run_files, "ambiguous", "clean.JSON", "clean.Json")
+    (tmp_path / "clean.json").write_text((tmp_path / "clean.Json").read_text())
+    assert len(read_run(run_files)) == 601  # the exact name wins
+
+
+def test_utf8_bom_is_accepted(run_files, clean_run):
+    for ext in (".csv", ".json"):
+        p = run_files.with_suffix(ext)
+        p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())  # Excel's "CSV UTF-8"
+    back = read_run(run_files)
+    np.testing.assert_array_equal(back.t, clean_run.t)
+    run_files.with_suffix(".csv").write_bytes(b"\xff\xfe" + b"t,valve")  # UTF-16: refused cleanly
+    _refused(run_files, "not UTF-8")
+
+
+def test_dotted_run_names(tmp_path, clean_run):
+    stem = write_run(clean_run, tmp_path / "run.v2")
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["run.v2.csv", "run.v2.json"]
+    assert read_run(tmp_path / "run.v2.csv").name == "run.v2" and read_run(stem).name == "run.v2"
+
+
+def test_streamed_reading_across_chunks(run_files, clean_run, monkeypatch):
+    from pneugym import data
+    monkeypatch.setattr(data, "CSV_CHUNK_ROWS", 7)  # 601 samples: 86 chunks, odd boundaries
+    back = read_run(run_files)
+    for c, a in clean_run.columns.items():
+        np.testing.assert_array_equal(back.columns[c], a, err_msg=c)
+    _rewrite_csv(run_files, lambda ls: ls + ["", " ", ""])  # trailing blank lines: dropped
+    assert len(read_run(run_files)) == 601
+    _rewrite_csv(run_files, lambda ls: ls[:300] + [""] + ls[300:])  # a blank line inside the data
+    _refused(run_files, r"line 301: blank line inside the data")
+    _rewrite_csv(run_files, lambda ls: [l for l in ls if l.strip()])
+    _rewrite_csv(run_files, lambda ls: _set_cell(ls, 500, "p_exhaust", "1,0"))  # 1 field too many
+    _refused(run_files, r"line 501: 7 fields, the header has 6|line 501: \d+ fields")

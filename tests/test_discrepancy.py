@@ -8,28 +8,50 @@ The full confusion matrix (>= 3 cases per effect plus controls) is in
 from __future__ import annotations
 
 import json
+import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pneugym import RigParams, thesis_rig
-from pneugym.data import thesis_protocol, write_run
-from pneugym.discrepancy import (CANDIDATES, Discrepancy, effective_sample_size, nrmse,
-                                 run_phases, separating_experiment)
+from pneugym.data import (
+    DEFAULT_NOISE,
+    MeasuredRun,
+    simulate_run,
+    thesis_protocol,
+    write_run,
+)
+from pneugym.discrepancy import (
+    CANDIDATES,
+    Discrepancy,
+    effective_sample_size,
+    nrmse,
+    run_phases,
+    separating_experiment,
+)
 from pneugym.discrepancy.__main__ import main
 from pneugym.discrepancy.candidates import FitParam, nominal_params
 from pneugym.discrepancy.expansion import expansion_index
 from pneugym.discrepancy.friction import FrictionDiscrepancy
-from pneugym.discrepancy.residuals import PHASES, estimate_noise
+from pneugym.discrepancy.prepare import (
+    MAX_WINDOW_S,
+    SETTLE_MARGIN_S,
+    block_average,
+    prepare,
+)
+from pneugym.discrepancy.residuals import PHASES, estimate_noise, replay
 from pneugym.discrepancy.stats import f_test, lr_test, standard_errors
 from pneugym.discrepancy.workflow import CandidateResult
 
-FAST = dict(n_starts=2, n_probe=6, max_nfev=25, seed=0, n_jobs=1)
+FAST = {"n_starts": 2, "n_probe": 6, "max_nfev": 25, "seed": 0, "n_jobs": 1}
 
 
 def perturbed(known: RigParams, rng: np.random.Generator, frac: float = 0.05, **effects) -> RigParams:
     """``known`` with the calibrated nominal parameters off by up to ``frac`` and ``effects``."""
-    f = lambda: 1.0 + rng.uniform(-frac, frac)  # noqa: E731
+    def f() -> float:
+        return 1.0 + rng.uniform(-frac, frac)
+
     fr = known.friction
     return known.with_(valve={"discharge_coefficient": known.valve.discharge_coefficient * f()},
                        friction={"static_n": fr.static_n * f(), "coulomb_n": fr.coulomb_n * f(),
@@ -156,6 +178,20 @@ def test_decision(cands, named, ambiguous):
     assert d.named_effect_ == named and d.ambiguous_ == ambiguous
     if named == "ambiguous":
         assert "longer hold" in d.suggestion_ and "ambiguous" in d.decision_
+    assert "held-out" not in d.decision_ or "held-out run included" in d.decision_
+
+
+def test_decision_without_a_held_out_run_says_so():
+    c = _cand("leakage", 10000.0)
+    c.checks = {"significant": True, "material": True, "away_from_null": True,
+                "not_on_bound": True, "improves_holdout": None}  # no held-out run
+    d = Discrepancy()
+    d.candidates_ = [c]
+    d._decide()
+    assert d.named_effect_ == "leakage"
+    assert "passes every check" not in d.decision_
+    assert "passes the 4 checks it could take" in d.decision_
+    assert "not tested on a held-out run" in d.decision_ and "not validated" in d.decision_
 
 
 # -- end to end: a hidden leak, which is also the thesis's expansion-index puzzle -----------------
@@ -173,7 +209,7 @@ def leak_case(tmp_path_factory):
 
 
 def test_leak_is_named_and_the_gap_shrinks(leak_case):
-    known, truth, runs, d, _ = leak_case
+    _, truth, runs, d, _ = leak_case
     assert d.named_effect_ == "leakage", d.summary()
     assert [r.name for r in d.holdout_runs_] == ["end_stroke_cutoff"]
     best = d.candidates_[0]
@@ -193,7 +229,7 @@ def test_leak_is_named_and_the_gap_shrinks(leak_case):
 
 
 def test_expansion_index_puzzle(leak_case):
-    known, truth, runs, d, _ = leak_case
+    known, _, runs, d, _ = leak_case
     early = runs[2]
     apparent = expansion_index(early, known)
     assert apparent.n > 2.0 and apparent.volume_ratio > 1.01  # thesis: 2.7, "far from" 1.0-1.4
@@ -205,7 +241,7 @@ def test_expansion_index_puzzle(leak_case):
 
 
 def test_report_files(leak_case):
-    known, truth, runs, d, out = leak_case
+    *_, out = leak_case
     rep = json.loads((out / "report.json").read_text(),
                      parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
     for key in ("named_effect", "candidates", "fitted_params", "gap_before", "gap_after",
@@ -215,7 +251,7 @@ def test_report_files(leak_case):
     assert rep["gap_reduction"] == pytest.approx(1 - rep["gap_after"] / rep["gap_before"])
     for c in rep["candidates"]:
         assert {"name", "parameters", "score", "passed", "checks"} <= set(c)
-    rig = RigParams.from_dict(json.loads(open(rep["updated_model"]).read()))
+    rig = RigParams.from_dict(json.loads(Path(rep["updated_model"]).read_text()))
     assert rig.effects.active == ("leakage",)
     md = (out / "report.md").read_text()
     assert "Named effect: `leakage`" in md and "trapped air after cut-off" in md
@@ -244,6 +280,146 @@ def test_cli_refuses_bad_runs(tmp_path, capsys):
     (tmp_path / "r.csv").write_text("t,valve,x,p_drive\n0,1,0,101325\n")
     assert main([str(tmp_path / "r.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "r.json" in capsys.readouterr().err
+
+
+# -- reports written as a whole; the output folder checked before the fit -------------------------
+def test_cli_checks_the_output_folder_before_reading_and_fitting(tmp_path, capsys, monkeypatch):
+    from pneugym.discrepancy import workflow
+    stem = write_run(simulate_run(thesis_rig(2.5), t_end=0.1, noise=None), tmp_path / "r")
+    not_a_folder = tmp_path / "report.txt"
+    not_a_folder.write_text("x")
+    monkeypatch.setattr(workflow, "read_runs", lambda *a: pytest.fail("runs read before --out was checked"))
+    monkeypatch.setattr(Discrepancy, "fit", lambda *a: pytest.fail("fit started before --out was checked"))
+    assert main([str(stem), "--out", str(not_a_folder)]) == 2
+    err = capsys.readouterr().err
+    assert str(not_a_folder) in err and "not a folder" in err
+    assert not_a_folder.read_text() == "x"
+
+
+def _snapshot(folder) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_report_is_replaced_as_a_whole(leak_case, tmp_path, monkeypatch):
+    from pneugym.discrepancy import report
+    _, _, _, d, _ = leak_case
+    out = tmp_path / "out"
+    d.report(out, plots=False)
+    old = _snapshot(out)
+    assert set(old) == {"report.json", "report.md", "updated_model.json"}
+    # a later report whose last file fails (e.g. the disk fills up) leaves the old set as it was:
+    # no new updated_model.json beside an old report, no staging folder left behind
+    monkeypatch.setattr(d, "fitted_params_", {**d.fitted_params_, "marker": 1.0})
+    monkeypatch.setattr(d, "updated_rigs_", [g.with_(load_mass_kg=99.0) for g in d.updated_rigs_])
+    def full_disk(rep):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(report, "markdown", full_disk)
+    with pytest.raises(OSError, match="No space"):
+        d.report(out, plots=False)
+    assert _snapshot(out) == old
+    monkeypatch.undo()
+    # a folder that cannot be one is refused before anything is written, naming the path
+    with pytest.raises(ValueError, match=str(tmp_path / "out" / "report.json")):
+        d.report(out / "report.json")
+
+
+# -- one run: no held-out check, and a long run cut to what carries information ------------------
+@pytest.fixture(scope="module")
+def single_long_run(tmp_path_factory):
+    """One 2-minute end-stroke cut-off run at 1 kHz (120001 samples), through the CLI with a
+    small budget and --max-samples 1000: windowed, then block-averaged."""
+    tmp = tmp_path_factory.mktemp("single")
+    run = simulate_run(thesis_rig(2.5), cut_on_arrival=True, t_end=120.0, noise="default", seed=4,
+                       name="long")
+    stem = write_run(run, tmp / "runs" / "long")
+    return run, stem, tmp
+
+
+def test_single_long_run_through_the_cli(single_long_run, capsys):
+    _, stem, tmp = single_long_run
+    out = tmp / "out"
+    rc = main([str(stem), "--out", str(out), "--candidates", "leakage,sensor_lag", "--starts", "1",
+               "--probe", "2", "--max-nfev", "10", "--jobs", "1", "--no-plots", "--quiet",
+               "--max-samples", "1000"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    rep = json.loads((out / "report.json").read_text())
+    md = (out / "report.md").read_text()
+    # a single run is never presented as validated
+    assert rep["held_out_tested"] is False and rep["holdout"] == []
+    assert rep["warnings"] and "not tested on a held-out run" in rep["warnings"][0]
+    assert "not tested on a held-out run" in rep["decision"]
+    assert "> **Warning: not tested on a held-out run" in md
+    assert "WARNING: not tested on a held-out run" in printed
+    # the run was windowed and block-averaged, and the report says so
+    prep = rep["runs"][0]["preparation"]
+    assert prep["windowed"] and not prep["capped"] and prep["samples_measured"] == 120001
+    assert prep["t_used_s"][1] < 10.0 and prep["block"] >= 2 and prep["samples_used"] <= 1000
+    assert rep["runs"][0]["samples"] == prep["samples_used"]
+    for text in (md, printed):
+        assert "long: window" in text and f"block-averaged by {prep['block']}" in text
+    # the noise is estimated on the averaged data: sigma / sqrt(block) for white noise
+    assert rep["noise_sigma"]["p_drive"] == pytest.approx(400.0 / math.sqrt(prep["block"]), rel=0.2)
+
+
+def test_window_and_decimation(single_long_run):
+    run, _, _ = single_long_run
+    rig = thesis_rig(2.5)
+    (short,), (info,) = prepare([run], [rig], max_samples=100_000)
+    assert info.windowed and info.block == 1 and not info.capped
+    # the window ends a margin after the last event: the exhaust pressure settling through the
+    # cushion, after the arrival and the cut-off reaching the valve
+    t_cut = run.schedule()[1][0] + rig.valve_delay_s + rig.valve.ramp_s
+    assert t_cut < info.t_events_end_s < info.t_used_s[1] == pytest.approx(
+        info.t_events_end_s + SETTLE_MARGIN_S, abs=1.5e-3)
+    tail = run.t > info.t_used_s[1]
+    assert np.abs(run.p_exhaust[tail] - np.median(run.p_exhaust[tail])).max() < 5 * 400 + 1e3
+    np.testing.assert_array_equal(short.p_drive, run.p_drive[: len(short)])
+    assert short.schedule() == run.schedule()
+    # a run without the noise channels settling (a leak keeps the pressure falling) is capped
+    leaky = simulate_run(rig.with_(effects={"leak_drive_area_m2": 2e-7}), cut_on_arrival=True,
+                         t_end=60.0, noise="default", known=rig, seed=1)
+    (capped,), (info,) = prepare([leaky], [rig], max_samples=100_000)
+    assert info.capped and capped.t[-1] == pytest.approx(MAX_WINDOW_S)
+    assert "cap" in info.sentence()
+    # runs up to the cap come back unchanged (the same objects), settled tail and all
+    runs = thesis_protocol(rig, t_end=2.0) + [simulate_run(rig, cut_on_arrival=True, t_end=MAX_WINDOW_S)]
+    assert all(a is b for a, b in zip(prepare(runs, [rig] * 4, max_samples=100_000)[0], runs))
+
+
+def test_block_averaged_replay_is_exact(single_long_run):
+    run, _, tmp = single_long_run
+    rig = thesis_rig(2.5)
+    (w,), _ = prepare([run], [rig], max_samples=100_000)
+    b = block_average(w, 5)
+    assert b.block == 5 and len(b) == len(w) // 5 and b.schedule() == w.schedule()
+    with pytest.raises(ValueError, match="block-averaged"):
+        write_run(b, Path(tmp) / "b")
+    assert 0.0 < b.valve[np.flatnonzero((b.valve > 0) & (b.valve < 1))].size <= 1  # the cut-off block
+    sim, sim_b = replay(w, rig), replay(b, rig)
+    for c in ("x", "p_drive", "p_exhaust"):
+        np.testing.assert_allclose(sim_b[c], sim[c][: 5 * len(b)].reshape(-1, 5).mean(axis=1),
+                                   rtol=1e-12, atol=1e-9)
+    # the averaged noise: sigma / sqrt(5) (white noise)
+    res = (b.p_drive - sim_b["p_drive"])[b.t > 3.0]
+    assert np.std(res) == pytest.approx(DEFAULT_NOISE["p_drive"] / math.sqrt(5), rel=0.15)
+
+
+def test_prepared_size_is_bounded_for_an_hour_at_1_khz():
+    """An hour at 1 kHz (3.6 million samples) is cut to at most max_samples, within seconds."""
+    import time
+    rig = thesis_rig(2.5)
+    base = simulate_run(rig, cut_on_arrival=True, t_end=5.0, noise=None)
+    n = 3_600_001
+    rng = np.random.default_rng(0)
+    cols = {c: np.concatenate([getattr(base, c), np.full(n - len(base), getattr(base, c)[-1])])
+            for c in ("valve", "x", "p_drive", "p_exhaust")}
+    cols["p_drive"] = cols["p_drive"] + rng.normal(0.0, 400.0, n)
+    hour = MeasuredRun(name="hour", t=np.arange(n) * 1e-3, meta=base.meta, **cols)
+    t0 = time.perf_counter()
+    (p,), (info,) = prepare([hour], [rig], max_samples=5000)
+    assert len(p) <= 5000 and info.t_used_s[1] <= MAX_WINDOW_S and info.samples_measured == n
+    assert time.perf_counter() - t0 < 20.0  # ~0.3 s here; a generous bound for a loaded machine
 
 
 # -- the real-data case: thesis Table 5.1 ----------------------------------------------------------

@@ -11,6 +11,6 @@ from .residuals import CHANNELS, PHASES, estimate_noise, nrmse, run_phases
 from .stats import effective_sample_size
 from .workflow import CandidateResult, Discrepancy
 
-__all__ = ["CANDIDATES", "Candidate", "FitParam", "separating_experiment", "CHANNELS", "PHASES",
-           "estimate_noise", "nrmse", "run_phases", "effective_sample_size", "CandidateResult",
-           "Discrepancy"]
+__all__ = ["CANDIDATES", "CHANNELS", "PHASES", "Candidate", "CandidateResult", "Discrepancy",
+           "FitParam", "effective_sample_size", "estimate_noise", "nrmse", "run_phases",
+           "separating_experiment"]

@@ -1,9 +1,10 @@
 """``python -m pneugym.discrepancy PATH... --out DIR``: the discrepancy workflow on measured runs.
 
 A PATH is a run (``NAME.csv``, ``NAME.json`` or the stem ``NAME``) or a folder of runs. Writes
-``report.json``, ``report.md``, ``updated_model.json`` and PNG plots into ``DIR`` and prints
-the decision. Exit status 0 on success, 2 when a run is refused (the message names the file,
-row or key and the reason).
+``report.json``, ``report.md``, ``updated_model.json`` and PNG plots into ``DIR`` (as a set:
+an earlier report there is replaced only once all are written) and prints the decision. Exit
+status 0 on success, 2 when ``DIR`` cannot be a writable folder (checked before anything else)
+or a run is refused (the message names the file, row or key and the reason).
 """
 from __future__ import annotations
 
@@ -11,8 +12,10 @@ import argparse
 import sys
 import time
 
-from ..data import MeasurementFormatError, read_runs
+from ..data import MeasurementFormatError
+from ..outputs import OutputError, check_output_dir
 from .candidates import CANDIDATES
+from .prepare import MAX_SAMPLES
 from .workflow import Discrepancy
 
 
@@ -36,6 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fraction of the calibrated model's misfit an effect must remove (default 0.1)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--max-samples", type=int, default=MAX_SAMPLES,
+                    help=f"most samples per run after windowing; more are block-averaged "
+                         f"(default {MAX_SAMPLES})")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
@@ -45,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     t0 = time.perf_counter()
     try:
-        runs = read_runs(a.paths)
-    except MeasurementFormatError as exc:
+        out = check_output_dir(a.out, "--out folder")  # before the (long) fit, not after it
+    except OutputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
@@ -54,17 +60,25 @@ def main(argv: list[str] | None = None) -> int:
     try:
         d = Discrepancy(names, holdout=holdout, n_starts=a.starts, n_probe=a.probe,
                         max_nfev=a.max_nfev, alpha=a.alpha, min_improvement=a.min_improvement,
-                        seed=a.seed, n_jobs=a.jobs, progress=not a.quiet)
+                        seed=a.seed, n_jobs=a.jobs, progress=not a.quiet,
+                        max_samples=a.max_samples)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"{len(runs)} run(s): " + ", ".join(r.name for r in runs), flush=True)
     try:
-        d.fit(runs)
+        # the workflow reads the runs itself: a long run's full arrays are dropped as soon as
+        # it has been cut to its informative window
+        d.fit(a.paths)
     except (MeasurementFormatError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    path = d.report(a.out, plots=not a.no_plots)
+    print(f"{len(d.runs_)} run(s): " + ", ".join(r.name for r in d.runs_), flush=True)
+    try:
+        path = d.report(out, plots=not a.no_plots)
+    except OSError as exc:  # e.g. the disk filled up: the old report is left as it was
+        print(d.summary())
+        print(f"error: the report could not be written to {out}: {exc}", file=sys.stderr)
+        return 2
     print(d.summary())
     print(f"report: {path} (and report.md, plots, updated_model.json) in "
           f"{time.perf_counter() - t0:.1f} s")

@@ -8,8 +8,8 @@ range the multi-start draws starting values from. The optimiser works on a trans
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 

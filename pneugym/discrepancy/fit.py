@@ -10,10 +10,10 @@ starts can run in parallel processes.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_all_start_methods, get_context
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares

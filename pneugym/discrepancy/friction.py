@@ -136,7 +136,7 @@ class FrictionDiscrepancy:
                            len(params))
 
     # -- workflow -------------------------------------------------------------------------
-    def fit(self) -> "FrictionDiscrepancy":
+    def fit(self) -> FrictionDiscrepancy:
         v, F = self.velocity_m_s, self.force_n
         n = F.size
         thesis = friction_model(v, static=self.static, **THESIS_FRICTION)

@@ -1,4 +1,5 @@
-"""Outputs of the workflow: ``report.json``, ``report.md``, ``updated_model.json`` and PNG plots."""
+"""Outputs of the workflow: ``report.json``, ``report.md``, ``updated_model.json`` and PNG plots,
+written as a set (:func:`pneugym.outputs.staged_files`): a failure leaves the old set untouched."""
 from __future__ import annotations
 
 import json
@@ -8,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..outputs import check_output_dir, staged_files
 from ..provenance import provenance
 from .residuals import CHANNELS, PHASE_TEXT, PHASES, UNITS, channels_of
 
@@ -22,6 +24,8 @@ NRMSE_DEFINITION = (
     "T_drive where measured)")
 #: findings worse than this (RMS residual in noise sigmas) are listed as failures
 FAIL_Z = 3.0
+#: the PNG plots :func:`write_plots` writes
+PLOTS = ("overlays.png", "residuals.png", "candidates.png")
 PHASE_COLOURS = {"before_motion": "#dddddd", "stroke": "#d6e9f8", "trapped": "#fde3c8",
                  "end_supply": "#dcf2d5"}
 
@@ -44,12 +48,12 @@ def _clean(o: Any) -> Any:
     return o
 
 
-def report_dict(d: "Discrepancy", updated_model_path: str | None = None) -> dict[str, Any]:
+def report_dict(d: Discrepancy, updated_model_path: str | None = None) -> dict[str, Any]:
     """Everything the report says, as plain JSON-able data."""
     hold = {r.name for r in d.holdout_runs_}
     cal = d.gaps_["calibrated"]["all"]["overall"]
     runs = []
-    for r, ph, rig in zip(d.runs_, d.phases_, d.rigs_):
+    for r, ph, rig, prep in zip(d.runs_, d.phases_, d.rigs_, d.preparation_):
         runs.append({
             "name": r.name, "source": str(r.source) if r.source else None,
             "description": r.description, "role": "holdout" if r.name in hold else "fit",
@@ -59,12 +63,15 @@ def report_dict(d: "Discrepancy", updated_model_path: str | None = None) -> dict
             "valve_commands": r.schedule(), "t_motion_s": ph.t_motion_s, "t_arrival_s": ph.t_arrival_s,
             "t_cut_effective_s": ph.t_cut_effective_s,
             "phases": [{"phase": p, "t_start_s": a, "t_end_s": b} for p, a, b in ph.spans(r.t)],
+            "preparation": prep.to_json(),
         })
     failures = [f.sentence() for f in d.findings_["calibrated"] if f.rms_z > FAIL_Z]
     return _clean({
         "format": REPORT_FORMAT,
         "named_effect": d.named_effect_,
         "decision": d.decision_,
+        "held_out_tested": d.held_out_tested,
+        "warnings": d.warnings_,
         "ambiguous_between": d.ambiguous_,
         "suggested_experiment": d.suggestion_,
         "candidates": [c.to_json() for c in d.candidates_],
@@ -97,19 +104,25 @@ def _read(rig, path: str) -> float:
     return float(getattr(getattr(rig, g), name))
 
 
-def write_report(d: "Discrepancy", out: str | Path, plots: bool = True) -> Path:
-    """Write the report files into ``out`` (created); returns the path of ``report.json``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    model_path = out / "updated_model.json"
-    model_path.write_text(json.dumps(_clean(d.updated_model.to_dict()), indent=2, allow_nan=False) + "\n")
-    rep = report_dict(d, str(model_path))
-    if plots:
-        rep["plots"] = [str(p) for p in write_plots(d, out)]
-    path = out / "report.json"
-    path.write_text(json.dumps(rep, indent=2, allow_nan=False) + "\n")
-    (out / "report.md").write_text(markdown(rep))
-    return path
+def write_report(d: Discrepancy, out: str | Path, plots: bool = True) -> Path:
+    """Write the report files into ``out`` (created) as a whole: they are written to a staging
+    folder and renamed into ``out`` only once all are written, so a failure leaves the old
+    report, model and plots as they were. Plots of an earlier report that this one does not
+    write are then removed. Returns the path of ``report.json``."""
+    out = check_output_dir(out, "report folder")
+    with staged_files(out) as stage:
+        (stage / "updated_model.json").write_text(
+            json.dumps(_clean(d.updated_model.to_dict()), indent=2, allow_nan=False) + "\n",
+            encoding="utf-8")
+        rep = report_dict(d, str(out / "updated_model.json"))
+        if plots:
+            rep["plots"] = [str(out / p.name) for p in write_plots(d, stage)]
+        (stage / "report.json").write_text(json.dumps(rep, indent=2, allow_nan=False) + "\n",
+                                           encoding="utf-8")
+        (stage / "report.md").write_text(markdown(rep), encoding="utf-8")
+    for name in PLOTS if not plots else ():
+        (out / name).unlink(missing_ok=True)  # stale: not part of this report
+    return out / "report.json"
 
 
 # ------------------------------------------------------------------------------------------
@@ -126,16 +139,18 @@ def _fmt(v: Any, digits: int = 4) -> str:
 def markdown(rep: dict[str, Any]) -> str:
     """A readable report from :func:`report_dict`."""
     L: list[str] = ["# Discrepancy report", ""]
+    L += [f"> **Warning: {w}**" for w in rep.get("warnings", [])]
+    L += [""] if rep.get("warnings") else []
     L += [f"**Named effect: `{rep['named_effect']}`**", "", rep["decision"], ""]
     if rep.get("suggested_experiment"):
-        L += [f"Suggested experiment to separate {' and '.join(rep['ambiguous_between'])}: "
-              f"{rep['suggested_experiment']}", ""]
+        L += [(f"Suggested experiment to separate {' and '.join(rep['ambiguous_between'])}: "
+               f"{rep['suggested_experiment']}"), ""]
     g = rep["gaps"]
     L += ["## Gap (NRMSE)", "",
-          f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "
-          f"runs' JSON) -> {rep['gap_calibrated']:.4g} (calibrated nominal) -> **{rep['gap_after']:.4g} "
-          f"after** (updated model): reduction **{rep['gap_reduction']:.1%}** "
-          f"({_pct(rep['gap_reduction_vs_calibrated'])} against the calibrated nominal model).", "",
+          (f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "
+           f"runs' JSON) -> {rep['gap_calibrated']:.4g} (calibrated nominal) -> **{rep['gap_after']:.4g} "
+           f"after** (updated model): reduction **{rep['gap_reduction']:.1%}** "
+           f"({_pct(rep['gap_reduction_vs_calibrated'])} against the calibrated nominal model)."), "",
           f"NRMSE: {rep['nrmse_definition']}.", ""]
     chans = [c for c in CHANNELS if c in g["nominal"]["all"]]
     L += ["| model | runs | overall | " + " | ".join(chans) + " |",
@@ -151,6 +166,12 @@ def markdown(rep: dict[str, Any]) -> str:
         L.append(f"| {r['name']} | {r['role']} | {r['description'] or '-'} | {r['samples']} | "
                  f"{r['supply_pressure_gauge_pa'] / 1e5:.3g} | {_sec(r['t_motion_s'])} | "
                  f"{_sec(r['t_arrival_s'])} | {_sec(r['t_cut_effective_s'])} |")
+    changed = [r["preparation"]["sentence"] for r in rep["runs"]
+               if r["preparation"]["windowed"] or r["preparation"]["block"] > 1]
+    if changed:
+        L += ["", ("Long runs were cut to the part that carries information before the fit "
+                   "(everything in this report refers to the runs as cut):"), ""]
+        L += [f"- {s}" for s in changed]
     L += ["", "Noise levels estimated from quiet segments: "
           + ", ".join(f"{c} {v:.3g} {UNITS[c]}" for c, v in rep["noise_sigma"].items()), ""]
     L += ["## Where the calibrated nominal model fails", ""]
@@ -183,14 +204,15 @@ def markdown(rep: dict[str, Any]) -> str:
     L += ["", "## Fitted parameters", "", "| parameter | as given | calibrated | updated model |", "|---|---|---|---|"]
     for k, v in rep["fitted_params"].items():
         L.append(f"| {k} | {_fmt(rep['nominal_params'].get(k))} | {_fmt(rep['calibrated_params'].get(k))} | {_fmt(v)} |")
-    L += ["", f"Updated model (load with `RigParams.from_dict(json.load(open(path)))`): "
-          f"`{rep['updated_model']}`", ""]
+    L += ["", (f"Updated model (load with `RigParams.from_dict(json.load(open(path)))`): "
+               f"`{rep['updated_model']}`"), ""]
     if rep.get("plots"):
         L += ["## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in rep["plots"]] + [""]
     cfg = rep["config"]
     L += ["## How this was made", "",
-          f"Workflow settings: {json.dumps(cfg)}. Wall time {rep['wall_time_s']:.1f} s. "
-          f"Versions: {json.dumps(rep['provenance']['versions'])}; commit {rep['provenance']['git_commit']}.", ""]
+          (f"Workflow settings: {json.dumps(cfg)}. Wall time {rep['wall_time_s']:.1f} s. "
+           f"Versions: {json.dumps(rep['provenance']['versions'])}; commit "
+           f"{rep['provenance']['git_commit']}."), ""]
     return "\n".join(L)
 
 
@@ -203,7 +225,7 @@ def _pct(v: float | None) -> str:
 
 
 # ------------------------------------------------------------------------------------------
-def write_plots(d: "Discrepancy", out: Path) -> list[Path]:
+def write_plots(d: Discrepancy, out: Path) -> list[Path]:
     """``overlays.png``, ``residuals.png``, ``candidates.png``."""
     import matplotlib
     matplotlib.use("Agg")

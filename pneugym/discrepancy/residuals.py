@@ -7,8 +7,8 @@ ports, lagged if ``sensor_lag_s`` > 0), and, when a run has them, ``mdot_supply`
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -42,12 +42,19 @@ def replay(run: MeasuredRun, params: RigParams) -> dict[str, np.ndarray]:
     """Simulate ``run``'s valve commands on rig ``params``; channels at the run's sample times.
 
     The plant starts at ``t = 0`` (the extend command) from rest; samples before ``t = 0`` get
-    the initial state. Raises :class:`pneugym.plant.SimulationError` if the plant fails."""
-    dt = run.sample_dt_s
-    t_end = max(float(run.t[-1]), dt)
+    the initial state. A block-averaged run (``run.block = k > 1``) gets the simulation at the
+    original sampling averaged over the same blocks of ``k`` samples. Raises
+    :class:`pneugym.plant.SimulationError` if the plant fails."""
+    k = int(run.block)
+    dt = run.sample_dt_s / k
+    t_end = max(float(run.t[-1]) + 0.5 * (k - 1) * dt, dt)
     traj = Plant(params).run(t_end, run.schedule(), record_dt=dt)
     ts = traj["t"]
-    return {c: np.interp(run.t, ts, traj[CHANNELS[c]]) for c in channels_of(run)}
+    if k == 1:
+        return {c: np.interp(run.t, ts, traj[CHANNELS[c]]) for c in channels_of(run)}
+    fine = (run.t[:, None] + (np.arange(k) - 0.5 * (k - 1)) * dt).ravel()
+    return {c: np.interp(fine, ts, traj[CHANNELS[c]]).reshape(-1, k).mean(axis=1)
+            for c in channels_of(run)}
 
 
 @dataclass(frozen=True)

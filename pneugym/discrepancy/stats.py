@@ -2,7 +2,7 @@
 F-test and likelihood-ratio test corrected with it, parameter standard errors."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy import stats

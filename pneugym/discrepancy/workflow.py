@@ -11,28 +11,49 @@ command; (2) the nominal parameters (discharge coefficient, static, Coulomb, vis
 are calibrated first; (3) residuals per run, phase and channel, in units of the noise level,
 say where the model fails; (4) every candidate effect is fitted jointly with the nominal
 parameters (multi-start least squares) and ranked; (5) an effect is named only if it passes
-every check in :attr:`Discrepancy.checks`; (6) the updated model is the calibrated rig plus the
-named effect; (7) NRMSE before/after on the fitted runs and the held-out run.
+every check of :meth:`Discrepancy._judge` (with a single run, or ``holdout=None``, there is no
+held-out check: the decision and the report say that it is fitted, not validated); (6) the
+updated model is the calibrated rig plus the named effect; (7) NRMSE before/after on the fitted
+runs and the held-out run.
+
+Long runs are first cut to the window that carries information and block-averaged to a
+bounded number of samples (:mod:`pneugym.discrepancy.prepare`); the report says what was done.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import stats as sps
 
 from ..data import MeasuredRun, read_runs
+from ..outputs import check_output_dir
 from ..params import RigParams
 from ..plant import SimulationError
-from .candidates import CANDIDATES, Candidate, FitParam, apply, nominal_params, read, separating_experiment
+from .candidates import (
+    CANDIDATES,
+    Candidate,
+    FitParam,
+    apply,
+    nominal_params,
+    read,
+    separating_experiment,
+)
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
-from .residuals import (Finding, RunPhases, channels_of, estimate_noise, localise, nrmse, replay,
-                        run_phases)
+from .prepare import MAX_SAMPLES, prepare
+from .residuals import RunPhases, estimate_noise, localise, nrmse, replay, run_phases
 from .stats import f_test, inflation, lr_test, standard_errors
 
 MODELS = ("nominal", "calibrated", "updated")
+#: said wherever a result has had no held-out check
+NO_HOLDOUT_WARNING = (
+    "not tested on a held-out run: with a single run (or holdout none) every run is fitted, so "
+    "the result is fitted, not validated; measure another run (e.g. another cut-off time) and "
+    "hold one out")
 
 
 @dataclass
@@ -97,12 +118,14 @@ class Discrepancy:
     seed : seeds every random start; the result does not depend on ``n_jobs``.
     n_jobs : processes for the starts (1 = serial; None = all cores).
     progress : show a tqdm progress bar.
+    max_samples : most samples per run after windowing; longer windows are block-averaged
+        (see :mod:`pneugym.discrepancy.prepare`).
     """
 
     def __init__(self, candidates: Iterable[str | Candidate] | None = None, holdout: str | None = "auto",
                  n_starts: int = 4, n_probe: int = 24, max_nfev: int = 40, alpha: float = 0.01,
                  min_improvement: float = 0.1, z_min: float = 3.0, seed: int = 0,
-                 n_jobs: int | None = 1, progress: bool = False):
+                 n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -117,7 +140,8 @@ class Discrepancy:
                             ("max_nfev", max_nfev, max_nfev >= 1),
                             ("alpha", alpha, 0 < alpha < 1),
                             ("min_improvement", min_improvement, 0 <= min_improvement < 1),
-                            ("z_min", z_min, z_min >= 0)):
+                            ("z_min", z_min, z_min >= 0),
+                            ("max_samples", max_samples, max_samples >= 100)):
             if not ok:
                 raise ValueError(f"Discrepancy {name} = {v!r} is out of range")
         self.candidates = tuple(cands)
@@ -131,24 +155,29 @@ class Discrepancy:
         self.seed = int(seed)
         self.n_jobs = n_jobs
         self.progress = progress
+        self.max_samples = int(max_samples)
 
     # --------------------------------------------------------------------------------------
     def config(self) -> dict[str, Any]:
         return {"candidates": [c.name for c in self.candidates], "holdout": self.holdout,
                 "n_starts": self.n_starts, "n_probe": self.n_probe, "max_nfev": self.max_nfev,
                 "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
-                "seed": self.seed, "n_jobs": self.n_jobs}
+                "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples}
 
-    def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> "Discrepancy":
-        """Run the workflow on measured runs (or paths to runs / folders of runs)."""
+    def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
+        """Run the workflow on measured runs (or paths to runs / folders of runs).
+
+        Long runs are windowed and block-averaged first (:attr:`preparation_` says how); the
+        attributes ``runs_``, ``sims_``, ``gaps_`` ... refer to the runs as prepared."""
         t0 = time.perf_counter()
         runs = list(runs)
         if runs and not isinstance(runs[0], MeasuredRun):
             runs = read_runs(runs, base)
         if not runs:
             raise ValueError("no runs given")
-        self.runs_ = runs
         self.rigs_ = [r.rig(base) for r in runs]
+        runs, self.preparation_ = prepare(runs, self.rigs_, self.max_samples)
+        self.runs_ = runs
         self.phases_: list[RunPhases] = [run_phases(r, g) for r, g in zip(runs, self.rigs_)]
         self.sigma_ = estimate_noise(runs)
         hold = self._choose_holdout()
@@ -216,6 +245,7 @@ class Discrepancy:
         self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
         self.gaps_ = {m: self._gaps(self.sims_[m]) for m in MODELS}
         self.findings_["updated"] = localise(runs, self.sims_["updated"], self.phases_, self.sigma_)
+        self.warnings_ = [] if self.holdout_runs_ else [NO_HOLDOUT_WARNING]
         self.wall_time_s_ = time.perf_counter() - t0
         return self
 
@@ -343,10 +373,13 @@ class Discrepancy:
         passed = [c for c in self.candidates_ if c.passed]
         self.ambiguous_: list[str] = []
         self.suggestion_: str | None = None
+        untested = any(c.checks.get("improves_holdout", False) is None for c in self.candidates_)
+        note = (" - not tested on a held-out run (a single run, or holdout none): fitted, not "
+                "validated") if untested else ""
         if not passed:
             self.named_effect_ = "none"
             self.decision_ = ("none: no candidate passes every check; the calibrated nominal model "
-                              "is kept")
+                              "is kept" + note)
             return
         a = passed[0]
         if len(passed) > 1:
@@ -363,11 +396,16 @@ class Discrepancy:
                 self.suggestion_ = separating_experiment(a.name, b.name)
                 self.decision_ = (f"ambiguous: {a.name} and {b.name} explain the data about equally "
                                   f"(N_eff ln(SSR ratio) = {stat:.3g}, p = {p:.2g}); to separate "
-                                  f"them: {self.suggestion_}")
+                                  f"them: {self.suggestion_}{note}")
                 return
         self.named_effect_ = a.name
-        self.decision_ = (f"{a.name}: passes every check and removes {a.score:.1%} of the calibrated "
-                          f"model's misfit over all runs")
+        if untested:
+            n = sum(v is not None for v in a.checks.values())
+            self.decision_ = (f"{a.name}: passes the {n} checks it could take and removes "
+                              f"{a.score:.1%} of the calibrated model's misfit{note}")
+        else:
+            self.decision_ = (f"{a.name}: passes every check, held-out run included, and removes "
+                              f"{a.score:.1%} of the calibrated model's misfit over all runs")
         if len(passed) > 1:
             self.decision_ += f" (clearly better than {passed[1].name}, p = {self.separation_['p_value']:.2g})"
 
@@ -413,24 +451,38 @@ class Discrepancy:
         """Overall NRMSE of the updated model on ``runs`` (lower is better)."""
         return nrmse(runs, [self.predict(r) for r in runs])["overall"]
 
-    def report(self, out: str, plots: bool = True):
-        """Write ``report.json``, ``report.md``, the updated model and the PNG plots to ``out``."""
+    @property
+    def held_out_tested(self) -> bool:
+        """Whether the result was checked on a held-out run."""
+        return bool(self.holdout_runs_)
+
+    def report(self, out: str | Path, plots: bool = True) -> Path:
+        """Write ``report.json``, ``report.md``, the updated model and the PNG plots to ``out``
+        as a whole (the set replaces the folder's old one only once every file is written).
+        Raises :class:`pneugym.outputs.OutputError` (a ``ValueError``) naming ``out`` if it
+        cannot be a writable folder; returns the path of ``report.json``."""
         from .report import write_report
+        check_output_dir(out, "report folder")
         return write_report(self, out, plots=plots)
 
     def summary(self) -> str:
         if not hasattr(self, "named_effect_"):
             return "Discrepancy (not fitted)"
-        lines = [f"named effect: {self.named_effect_}", f"  {self.decision_}",
-                 f"gap (overall NRMSE, all runs): {self.gap_before:.4g} -> {self.gap_after:.4g} "
-                 f"({self.gap_reduction:+.1%} reduction)",
-                 "candidates (best first):"]
+        lines = [f"WARNING: {w}" for w in getattr(self, "warnings_", [])]
+        lines += [f"named effect: {self.named_effect_}", f"  {self.decision_}",
+                  (f"gap (overall NRMSE, all runs): {self.gap_before:.4g} -> {self.gap_after:.4g} "
+                   f"({self.gap_reduction:+.1%} reduction)"),
+                  "candidates (best first):"]
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
             lines.append(f"  {mark} {c.name:18s} score {c.score:+.3f}  {eff}")
             for r in c.reasons:
                 lines.append(f"         - {r}")
+        changed = [p.sentence() for p in self.preparation_ if p.windowed or p.block > 1]
+        if changed:
+            lines.append("long runs, cut to what carries information:")
+            lines += [f"  {s}" for s in changed]
         worst = self.findings_["calibrated"][:3]
         if worst:
             lines.append("worst residuals of the calibrated nominal model:")
