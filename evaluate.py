@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
+import re
+import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -35,6 +36,7 @@ from agents.base import Policy, run_first_episodes
 from agents.registry import load_policy
 from pneugym.envs import Conditions, ConditionSpace
 from pneugym.envs.cutoff import CutOffVectorEnv
+from pneugym.outputs import atomic_write_json, check_output_dir, staged_files
 from pneugym.provenance import provenance
 
 DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "esac", "ppo", "dqn", "oracle"]
@@ -110,6 +112,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
              env_config: dict | None = None) -> dict[str, Any]:
     """Run every policy on every suite; returns the results.json structure."""
     env_config = dict(env_config or {})
+    check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)
     results: dict[str, Any] = {"suites": {}}
@@ -181,16 +184,52 @@ def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:
         for item in tail.split(","):
             key, eq, val = item.partition("=")
             if not eq or not key:
-                raise SystemExit(f"{spec!r}: overrides are key=value pairs separated by commas")
+                raise ValueError(f"{spec!r}: overrides are key=value pairs separated by commas")
             try:
                 over[key] = float(val)
             except ValueError:
                 over[key] = val
     if {"rule", "value"} & set(over):
         if set(over) - {"rule", "value"}:
-            raise SystemExit(f"{spec!r}: an SB3 decision override takes rule and value only")
+            raise ValueError(f"{spec!r}: an SB3 decision override takes rule and value only")
         over = {"decision": over}
     return name, path, over
+
+
+#: Names a saved model may not take: the references every suite runs, and the baselines.
+RESERVED = ("conventional", "oracle")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+def check_policy_specs(specs: Sequence[str]) -> list[str]:
+    """Refuse what would give a wrong table: a saved model under a baseline's or a reference's
+    name (``conventional=runs/ppo`` would replace the reference of every oracle fraction), a
+    name given twice (rows would overwrite each other), an empty or odd name. Returns the
+    names in order."""
+    names = []
+    for spec in specs:
+        name, path, _ = parse_spec(spec)
+        if path is not None:
+            if name in BASELINES:
+                role = "a reference of every suite" if name in RESERVED else "a baseline"
+                raise ValueError(f"{spec!r}: {name!r} is {role}; give the saved model another "
+                                 f"name (e.g. {name}_model={path})")
+            if not path:
+                raise ValueError(f"{spec!r}: no model path after '='")
+            if not Path(path).exists():
+                raise FileNotFoundError(f"{spec!r}: no saved model at {path}")
+        elif name not in BASELINES and name not in LEARNED:
+            raise ValueError(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, "
+                             f"learned ones {list(LEARNED)} (trained on demand under --runs), "
+                             f"saved models are given as NAME=PATH")
+        if not _NAME.match(name):
+            raise ValueError(f"{spec!r}: policy name {name!r} must start with a letter or digit "
+                             f"and hold only letters, digits and _ . + -")
+        if name in names:
+            raise ValueError(f"policy name {name!r} is given twice: its rows would overwrite "
+                             f"each other; give each policy its own name")
+        names.append(name)
+    return names
 
 
 def _policy(spec: str, env, env_config: dict) -> tuple[str, Policy]:
@@ -231,18 +270,18 @@ def print_table(results: dict[str, Any]) -> None:
 
 
 def write_outputs(results: dict[str, Any], out: Path) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / "results.json.tmp"
-    tmp.write_text(json.dumps(results, indent=1, allow_nan=False))
-    tmp.replace(out / "results.json")
-    rows = [r for s in results["suites"].values() for r in s["episodes"]]
-    if rows:
-        keys = list(dict.fromkeys(k for r in rows for k in r))
-        with open(out / "results.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=keys)
-            w.writeheader()
-            w.writerows(rows)
-    plot_results(results, out)
+    """results.json, results.csv and the plots, replacing those in ``out`` only once all are
+    written (an error leaves the previous set untouched)."""
+    with staged_files(out) as stage:
+        atomic_write_json(stage / "results.json", results)
+        rows = [r for s in results["suites"].values() for r in s["episodes"]]
+        if rows:
+            keys = list(dict.fromkeys(k for r in rows for k in r))
+            with open(stage / "results.csv", "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=keys)
+                w.writeheader()
+                w.writerows(rows)
+        plot_results(results, stage)
 
 
 def plot_results(results: dict[str, Any], out: Path) -> None:
@@ -352,6 +391,14 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = ap.parse_args(argv)
     if args.episodes < 1:
         ap.error("--episodes must be >= 1")
+    try:  # before any work: a wrong name or an unusable --out must not cost a training
+        check_policy_specs(args.policies)
+        check_output_dir(args.out, "--out")
+    except (ValueError, FileNotFoundError) as exc:
+        ap.error(str(exc))
+    if args.seed < EVAL_SEED:
+        print(f"warning: --seed {args.seed} lies in the range used for training and tuning "
+              f"(below {EVAL_SEED:,}); figures on it are not held-out results", file=sys.stderr)
     suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
     policies = resolve_learned(args.policies, args.runs, args.budget)
     results = evaluate(policies, suites, args.episodes, args.seed)

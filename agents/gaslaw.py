@@ -137,12 +137,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    from pneugym.outputs import atomic_write_json, check_output_dir
     from pneugym.provenance import provenance
 
+    try:  # before the calibration: an unusable path must not cost the run
+        check_output_dir(Path(args.out).parent, "--out's folder")
+        if args.plot:
+            check_output_dir(Path(args.plot).parent, "--plot's folder")
+    except ValueError as exc:
+        ap.error(str(exc))
     result = calibrate(seed=args.seed)
     result["provenance"] = provenance()
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    atomic_write_json(args.out, result)
     print(f"{'supply [bar g]':>14} {'K calibrated':>12} {'return':>8}   thesis K (rig / sim)")
     for r in result["table"]:
         p = r["supply_bar_gauge"]
@@ -158,7 +164,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         ax.set_ylim(-2.0, 0.0)
         ax.set_xlabel("K"), ax.set_ylabel("episode return (objective)")
         ax.set_title("Gas-Law rule on the nominal rig"), ax.legend(), ax.grid(alpha=0.3)
-        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(args.plot, dpi=120, bbox_inches="tight")
         print(f"wrote {args.out} and {args.plot}")
 

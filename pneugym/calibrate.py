@@ -39,6 +39,7 @@ from scipy.optimize import least_squares
 
 from .actuation import StrokeResult, cutoff_for_time_increase, simulate_stroke
 from .params import RigParams, thesis_rig
+from .outputs import atomic_write_json, check_output_dir
 from .provenance import provenance
 from .validate import THESIS, TOLERANCES
 
@@ -176,6 +177,10 @@ def main(argv: list[str] | None = None) -> None:
                     help="start from the current defaults instead of the priors")
     ap.add_argument("--start", help="start from the parameters of an earlier calibration JSON")
     a = ap.parse_args(argv)
+    try:  # before the fit: an unusable path must not cost it
+        check_output_dir(pathlib.Path(a.out).parent, "--out's folder")
+    except ValueError as exc:
+        ap.error(str(exc))
     x0 = None
     if a.from_defaults:
         base = RigParams()
@@ -190,9 +195,7 @@ def main(argv: list[str] | None = None) -> None:
                 "wall_time_s": time.perf_counter() - t0, "scales": SCALES,
                 "tolerances": TOLERANCES, "hinge": {"fraction": HINGE_FRACTION, "weight": HINGE_WEIGHT},
                 "provenance": provenance()})
-    p = pathlib.Path(a.out)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(rep, indent=2))
+    p = atomic_write_json(a.out, rep, indent=2)
     print(json.dumps(rep["parameters"], indent=2))
     for f in rep["figures"]:
         print(f)

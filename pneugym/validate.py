@@ -9,7 +9,6 @@ Prints a side-by-side table and writes ``{"rows": [{"quantity", "simulated", "re
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from .plant import Plant, pack
 from .physics import layout as L
 from .physics.orifice import OC_CM_STAR
 from .physics.testbed import line_run
+from .outputs import atomic_write_json, check_output_dir
 from .provenance import provenance
 
 BAR = 1e5
@@ -370,19 +370,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default="validation/report.json", help="where to write the table")
     ap.add_argument("--plots", default="validation", help="folder for the PNG plots")
     a = ap.parse_args(argv)
+    try:  # before the (minute-long) report: an unusable path must not cost the run
+        check_output_dir(Path(a.json).parent, "--json's folder")
+        check_output_dir(a.plots, "--plots")
+    except ValueError as exc:
+        ap.error(str(exc))
     rows, data = build_report()
     print(format_table(rows))
     n_fail = sum(r.passed is False for r in rows)
     n_pass = sum(r.passed is True for r in rows)
     print(f"{n_pass} passed, {n_fail} failed, {sum(r.passed is None for r in rows)} for information")
     out = Path(a.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
     keys = ("quantity", "simulated", "reference", "tolerance", "unit", "passed", "group", "relative", "note")
     def clean(v):  # strict JSON: no NaN/inf
         return None if isinstance(v, float) and not math.isfinite(v) else v
 
-    out.write_text(json.dumps({"rows": [{k: clean(getattr(r, k)) for k in keys} for r in rows],
-                               "provenance": provenance()}, indent=2, default=float))
+    atomic_write_json(out, {"rows": [{k: clean(getattr(r, k)) for k in keys} for r in rows],
+                            "provenance": provenance()}, default=float, indent=2)
     files = plot_report(data, Path(a.plots))
     print(f"wrote {out} and {', '.join(str(f) for f in files)}")
     return 0

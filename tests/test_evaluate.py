@@ -102,16 +102,58 @@ def test_learned_names_resolve_to_trained_models(tmp_path, monkeypatch):
     assert ev.resolve_learned(["gaslaw"], str(tmp_path), "quick") == ["gaslaw"]
 
 
-def test_unknown_policy_and_bad_path_are_refused(tmp_path):
-    with pytest.raises(SystemExit, match="unknown policy"):
-        ev.main(["--policies", "nope", "--suite", "nominal", "--out", str(tmp_path)])
-    with pytest.raises(FileNotFoundError, match="no saved model"):
-        ev.main(["--policies", f"x={tmp_path / 'missing.zip'}", "--suite", "nominal",
-                 "--out", str(tmp_path)])
+def test_unknown_policy_and_bad_path_are_refused_before_any_work(tmp_path, capsys):
+    for spec, msg in (("nope", "unknown policy 'nope'"),
+                      (f"x={tmp_path / 'missing.zip'}", "no saved model at")):
+        with pytest.raises(SystemExit):
+            ev.main(["--policies", "gaslaw", spec, "--suite", "nominal", "--out", str(tmp_path)])
+        assert msg in capsys.readouterr().err
+    assert not (tmp_path / "results.json").exists()
     bad = tmp_path / "bad.zip"
     bad.write_text("not a zip")
     with pytest.raises(ValueError, match="not a stable-baselines3 model"):
         ev.main(["--policies", f"x={bad}", "--suite", "nominal", "--out", str(tmp_path)])
+
+
+@pytest.mark.parametrize("specs,msg", [
+    (["conventional={model}"], "'conventional' is a reference of every suite"),
+    (["oracle={model}"], "'oracle' is a reference"),
+    (["gaslaw={model}"], "'gaslaw' is a baseline"),
+    (["ppo={model}", "ppo={model}"], "'ppo' is given twice"),
+    (["gaslaw", "gaslaw"], "'gaslaw' is given twice"),
+    (["a b={model}"], "policy name 'a b'"),
+    (["x="], "no model path"),
+])
+def test_names_that_would_give_a_wrong_table_are_refused(tmp_path, specs, msg):
+    model = tmp_path / "m.zip"
+    model.write_bytes(b"")
+    specs = [s.format(model=model) for s in specs]
+    with pytest.raises(ValueError, match=msg):
+        ev.check_policy_specs(specs)
+
+
+def test_out_that_is_a_file_is_refused_before_any_work(tmp_path, capsys):
+    f = tmp_path / "results"
+    f.write_text("")
+    with pytest.raises(SystemExit):
+        ev.main(["--policies", "gaslaw", "--suite", "nominal", "--out", str(f)])
+    assert "exists and is not a folder" in capsys.readouterr().err
+
+
+def test_a_failed_write_leaves_the_previous_results(tmp_path, monkeypatch, nominal):
+    res, _ = nominal
+    ev.write_outputs(res, tmp_path)
+    before = (tmp_path / "results.json").read_bytes()
+
+    def boom(results, out):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(ev, "plot_results", boom)
+    changed = dict(res, seed=res["seed"] + 1)
+    with pytest.raises(RuntimeError, match="disk full"):
+        ev.write_outputs(changed, tmp_path)
+    assert (tmp_path / "results.json").read_bytes() == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".staging")]
 
 
 def test_policy_specs_with_decision_overrides():
@@ -121,7 +163,7 @@ def test_policy_specs_with_decision_overrides():
         "e10", "runs/esac", {"max_time_increase": 0.1, "lookahead": 1.0})
     assert ev.parse_spec("p=runs/ppo/model.zip:rule=quantile,value=0.3") == (
         "p", "runs/ppo/model.zip", {"decision": {"rule": "quantile", "value": 0.3}})
-    with pytest.raises(SystemExit, match="rule and value only"):
+    with pytest.raises(ValueError, match="rule and value only"):
         ev.parse_spec("p=runs/ppo:rule=quantile,margin=0.1")
-    with pytest.raises(SystemExit, match="key=value"):
+    with pytest.raises(ValueError, match="key=value"):
         ev.parse_spec("p=runs/ppo:margin=0.1,oops")
