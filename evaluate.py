@@ -12,7 +12,9 @@ Suites (sensor noise 0.03 mm / 400 Pa in every episode):
   friction -30 % / +30 %, valve delay -20 % / +20 %.
 
 Every policy meets the same episodes (conditions and sensor noise from ``--seed``; keep evaluation
-seeds >= 1,000,000, the range this project never uses for training or calibration).
+seeds >= 1,000,000, the range this project never uses for training or calibration). Every saved
+model is loaded and checked (file, observation layout, decision overrides) before any episode
+runs or any policy is trained on demand; a problem is a usage error (exit 2) naming it.
 ``oracle_fraction = (return - conventional return) / (oracle return - conventional return)``
 on the suite's (or condition's) mean returns.
 """
@@ -25,7 +27,7 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -109,12 +111,15 @@ def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str
 
 
 def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
-             env_config: dict | None = None) -> dict[str, Any]:
-    """Run every policy on every suite; returns the results.json structure."""
+             env_config: dict | None = None,
+             preloaded: Mapping[str, Policy] | None = None) -> dict[str, Any]:
+    """Run every policy on every suite; returns the results.json structure. ``preloaded``:
+    policies already loaded (:func:`load_models`), by name."""
     env_config = dict(env_config or {})
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)
+    preloaded = dict(preloaded or {})
     results: dict[str, Any] = {"suites": {}}
     for suite in suites:
         eps = suite_episodes(suite, episodes, seed)
@@ -122,7 +127,9 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
         records: dict[str, list[dict[str, Any]]] = {}
         wall: dict[str, float] = {}
         for spec in tqdm(names, desc=f"{suite} suite", unit="policy"):
-            name, pol = _policy(spec, probe, env_config)
+            name = parse_spec(spec)[0]
+            name, pol = (name, preloaded[name]) if name in preloaded else _policy(
+                spec, probe, env_config)
             t0 = time.perf_counter()
             out = run_policy(pol, conds, env_config, seed)
             wall[name] = time.perf_counter() - t0
@@ -173,7 +180,9 @@ def resolve_learned(policies: Sequence[str], runs: str, budget: str) -> list[str
 def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:
     """``NAME``, or ``NAME=PATH[:key=value,...]`` of a saved model with its decision overridden:
     ESAC rule parameters (``esac10=runs/esac:max_time_increase=0.1``), or an SB3 model's
-    ``rule`` and ``value`` (``ppo3=runs/ppo:rule=quantile,value=0.3``)."""
+    ``rule`` and ``value`` (``ppo3=runs/ppo:rule=quantile,value=0.3``). Numbers are read as
+    numbers, anything else as text; the values are checked when the model is loaded
+    (:func:`agents.registry.load_policy`)."""
     if "=" not in spec:
         return spec, None, {}
     name, path = spec.split("=", 1)
@@ -182,16 +191,22 @@ def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:
     if sep and "=" in tail:
         path = head
         for item in tail.split(","):
-            key, eq, val = item.partition("=")
+            key, eq, val = (x.strip() for x in item.partition("="))
             if not eq or not key:
-                raise ValueError(f"{spec!r}: overrides are key=value pairs separated by commas")
+                raise ValueError(f"{spec!r}: overrides are key=value pairs separated by commas "
+                                 f"(e.g. {name}={path}:margin=0.05,max_time_increase=0.1)")
+            if not val:
+                raise ValueError(f"{spec!r}: {key}= has no value; give one, e.g. {key}=0.1")
+            if key in over:
+                raise ValueError(f"{spec!r}: {key} is given twice")
             try:
                 over[key] = float(val)
             except ValueError:
                 over[key] = val
     if {"rule", "value"} & set(over):
         if set(over) - {"rule", "value"}:
-            raise ValueError(f"{spec!r}: an SB3 decision override takes rule and value only")
+            raise ValueError(f"{spec!r}: an SB3 decision override takes rule and value only; "
+                             f"{sorted(set(over) - {'rule', 'value'})} are ESAC rule parameters")
         over = {"decision": over}
     return name, path, over
 
@@ -217,7 +232,10 @@ def check_policy_specs(specs: Sequence[str]) -> list[str]:
             if not path:
                 raise ValueError(f"{spec!r}: no model path after '='")
             if not Path(path).exists():
-                raise FileNotFoundError(f"{spec!r}: no saved model at {path}")
+                hint = (" (overrides follow the path as :key=value, e.g. "
+                        f"{path.rpartition(':')[0]}:margin=0.05)"
+                        if ":" in path and "=" not in path.rpartition(":")[2] else "")
+                raise FileNotFoundError(f"{spec!r}: no saved model at {path}{hint}")
         elif name not in BASELINES and name not in LEARNED:
             raise ValueError(f"unknown policy {spec!r}: baselines are {sorted(BASELINES)}, "
                              f"learned ones {list(LEARNED)} (trained on demand under --runs), "
@@ -230,6 +248,35 @@ def check_policy_specs(specs: Sequence[str]) -> list[str]:
                              f"each other; give each policy its own name")
         names.append(name)
     return names
+
+
+def load_models(specs: Sequence[str], runs: str | Path = "runs", budget: str = "quick",
+                env_config: dict | None = None) -> dict[str, Policy]:
+    """Load, and so check, every saved model the run needs before any episode or training:
+    each ``NAME=PATH`` (file, layout, decision override) and each bare learned name whose run
+    under ``runs`` is finished; for the others, check that train.py can train or resume them
+    (:func:`train.training_plan`). Returns the loaded policies by name; raises ValueError
+    naming the spec and what is wrong."""
+    probe = CutOffVectorEnv(num_envs=1, **dict(env_config or {}))
+    out: dict[str, Policy] = {}
+    bare = [s for s in specs if s in LEARNED]
+    todo: list[tuple[str, str, Path | str, dict[str, Any]]] = []
+    if bare:
+        import train
+
+        for name, (what, p) in train.training_plan(bare, runs, budget).items():
+            if what == "ready":
+                todo.append((name, name, p, {}))
+    for spec in specs:
+        name, path, over = parse_spec(spec)
+        if path is not None:
+            todo.append((spec, name, path, over))
+    for spec, name, path, over in todo:
+        try:
+            out[name] = load_policy(path, probe, **over)
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"{spec!r}: {exc}") from None
+    return out
 
 
 def _policy(spec: str, env, env_config: dict) -> tuple[str, Policy]:
@@ -269,7 +316,7 @@ def print_table(results: dict[str, Any]) -> None:
           "oracle's gain over conventional)")
 
 
-def write_outputs(results: dict[str, Any], out: Path) -> None:
+def write_outputs(results: dict[str, Any], out: str | Path) -> None:
     """results.json, results.csv and the plots, replacing those in ``out`` only once all are
     written (an error leaves the previous set untouched)."""
     with staged_files(out) as stage:
@@ -390,20 +437,24 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--out", default="results")
     args = ap.parse_args(argv)
     if args.episodes < 1:
-        ap.error("--episodes must be >= 1")
-    try:  # before any work: a wrong name or an unusable --out must not cost a training
+        ap.error(f"--episodes {args.episodes}: must be >= 1 (episodes per condition cell)")
+    if not 0 <= args.seed < 2 ** 63:
+        ap.error(f"--seed {args.seed}: episode seeds must be integers from 0 to 2**63 - 1; "
+                 f"held-out results use {EVAL_SEED:,} and up")
+    try:  # before any work: a wrong name, an unusable model or --out must not cost a training
         check_policy_specs(args.policies)
-        check_output_dir(args.out, "--out")
-    except (ValueError, FileNotFoundError) as exc:
+        preloaded = load_models(args.policies, args.runs, args.budget)
+        check_output_dir(args.out, "--out")  # the string as given: "" is not the current folder
+    except (ValueError, OSError) as exc:
         ap.error(str(exc))
     if args.seed < EVAL_SEED:
         print(f"warning: --seed {args.seed} lies in the range used for training and tuning "
               f"(below {EVAL_SEED:,}); figures on it are not held-out results", file=sys.stderr)
     suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
     policies = resolve_learned(args.policies, args.runs, args.budget)
-    results = evaluate(policies, suites, args.episodes, args.seed)
+    results = evaluate(policies, suites, args.episodes, args.seed, preloaded=preloaded)
     print_table(results)
-    write_outputs(results, Path(args.out))
+    write_outputs(results, args.out)
     print(f"\nwrote {args.out}/results.json, results.csv and plots")
     return results
 

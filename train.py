@@ -12,24 +12,27 @@ Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``qu
 overrides it); ``--set key.sub=value`` overrides single entries. Every run directory holds
 ``run.json`` (configuration, seed, package versions, observation layout, status, validation
 history), the model (``model.zip`` / ``best_model.zip`` for SB3, ``model.pt`` for ESAC), the last
-checkpoints and the logs (``progress.csv``; TensorBoard event files beside it when
+checkpoints and the logs (``progress.csv``; TensorBoard event files under ``tb/`` when
 ``tensorboard`` is installed). Files are written to a temporary name and renamed, so an interrupted run leaves its last
 good checkpoint usable. Training seeds stay below 1,000,000; evaluation uses the seeds above.
 
 Runs are never lost: a run folder that holds anything is refused unless ``--resume`` (continue its
-last checkpoint; an error if there is none) or ``--force`` (start over: removes the previous run's
-model, checkpoints and logs, and lists them). SIGINT or SIGTERM stop training at the next step
-with a checkpoint and ``status: "interrupted"`` in ``run.json``; ``--resume`` continues from it (a
-second signal stops at once). Checkpoints are loaded without unpickling anything
-(``agents/safe_load.py``); DQN replay buffers are saved as plain arrays (``replay_*.npz``), and
-the pickled ``replay_*.pkl`` of older runs are loaded only with ``--trust-pickled-replay-buffer``
-(only for your own runs).
+last checkpoint; an error if there is none) or ``--force`` (start over a folder that holds a
+train.py ``run.json``: lists the files train.py wrote there, then removes exactly those; other
+files stay, and a non-empty folder without ``run.json`` is refused even with ``--force``). The
+whole configuration (YAML file, budget, ``--set``) is checked before anything is written: unknown
+keys (with the nearest known name), SB3 keywords against the algorithm's constructor, types and
+ranges. SIGINT or SIGTERM stop training at the next step with a checkpoint and
+``status: "interrupted"`` in ``run.json``; ``--resume`` continues from it (a second signal stops
+at once; a run whose seed is not a training seed is not resumed). Checkpoints are loaded without
+unpickling anything (``agents/safe_load.py``); DQN replay buffers are saved as plain arrays
+(``replay_*.npz``), and the pickled ``replay_*.pkl`` of older runs are loaded only with
+``--trust-pickled-replay-buffer`` (only for your own runs).
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
-import copy
 import hashlib
 import json
 import math
@@ -43,66 +46,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from agents.train_config import (  # noqa: F401  (train.load_config etc. are public here too)
+    ALGOS, CONFIG_DIR, MAX_TRAINING_SEED, ConfigError, _check_seed, check_config, load_config,
+)
+
 ROOT = Path(__file__).resolve().parent
-CONFIG_DIR = ROOT / "configs"
-ALGOS = ("ppo", "dqn", "esac")
 DEFAULT_POLICIES = ("esac", "ppo", "dqn")  # what evaluate.py trains on demand
-MAX_TRAINING_SEED = 1_000_000  # evaluation seeds start here
 RUN_FILE = "run.json"
-
-
-# ------------------------------------------------------------------------------------------------
-# configuration and files
-# ------------------------------------------------------------------------------------------------
-def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(dict(base))
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) \
-            else copy.deepcopy(v)
-    return out
-
-
-def load_config(algo: str, budget: str = "default", path: str | Path | None = None,
-                overrides: Sequence[str] = ()) -> dict[str, Any]:
-    """The configuration of ``algo``: ``configs/<algo>.yaml``'s ``default`` section, merged with the
-    ``budget`` section (e.g. ``quick``), then ``overrides`` (``"a.b=value"``, value parsed as YAML)."""
-    import yaml
-
-    path = Path(path) if path else CONFIG_DIR / f"{algo}.yaml"
-    with open(path) as f:
-        doc = yaml.safe_load(f)
-    if not isinstance(doc, Mapping) or "default" not in doc:
-        raise ValueError(f"{path}: expected a mapping with a 'default' section")
-    if budget != "default" and budget not in doc:
-        raise ValueError(f"{path} has no budget {budget!r}; it has {sorted(doc)}")
-    cfg = _merge(doc["default"], doc.get(budget, {}) if budget != "default" else {})
-    for item in overrides:
-        if "=" not in item:
-            raise ValueError(f"--set {item!r}: expected key.sub=value")
-        key, val = item.split("=", 1)
-        node = cfg
-        parts = key.split(".")
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-            if not isinstance(node, dict):
-                raise ValueError(f"--set {item!r}: {p!r} is not a section")
-        node[parts[-1]] = _parse_value(val)
-    cfg["algo_name"] = algo
-    cfg["budget"] = budget
-    return cfg
-
-
-def _parse_value(text: str) -> Any:
-    """A ``--set`` value as YAML, with numbers like ``1e-4`` (a string in YAML 1.1) as floats."""
-    import yaml
-
-    v = yaml.safe_load(text)
-    if isinstance(v, str):
-        try:
-            return float(v)
-        except ValueError:
-            pass
-    return v
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
@@ -157,13 +107,6 @@ def _threads(cfg: Mapping[str, Any]) -> None:
 
     numba.set_num_threads(max(1, min(int(cfg.get("numba_threads", 1)), numba.config.NUMBA_NUM_THREADS)))
     torch.set_num_threads(int(cfg.get("torch_threads", 1)))
-
-
-def _check_seed(name: str, seed: int, span: int = 1) -> None:
-    if not (0 <= seed and seed + span <= MAX_TRAINING_SEED):
-        raise ValueError(f"{name} seeds {seed}..{seed + span - 1} must lie in [0, "
-                         f"{MAX_TRAINING_SEED}): the seeds from {MAX_TRAINING_SEED} up are "
-                         f"reserved for evaluation")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -446,7 +389,9 @@ def _schedule(v: Any):
 
 
 def _logger(out: Path, resume: bool):
-    from stable_baselines3.common.logger import configure
+    """SB3's logger: ``progress.csv`` in ``out``, TensorBoard event files in ``out/tb`` when
+    ``tensorboard`` is installed."""
+    from stable_baselines3.common.logger import Logger, make_output_format
 
     formats = ["csv"]
     try:
@@ -459,7 +404,9 @@ def _logger(out: Path, resume: bool):
         while (out / f"progress.{n}.csv").exists():
             n += 1
         os.replace(out / "progress.csv", out / f"progress.{n}.csv")
-    return configure(str(out), formats), formats
+    writers = [make_output_format(f, str(out / "tb") if f == "tensorboard" else str(out))
+               for f in formats]
+    return Logger(str(out), writers), formats
 
 
 def _resume_schedules(kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -602,18 +549,21 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
             bar.bar.close()
     wall = time.perf_counter() - t0
     prev_wall = float(run.get("train_wall_s", 0.0)) if ckpt else 0.0
-    if stop.signal is not None:  # keep what was trained: an interruption checkpoint
+    try:
+        if stop.signal is not None:  # keep what was trained: an interruption checkpoint
+            ck.init_callback(model)
+            ck.save()
+            record(train_wall_s=prev_wall + wall)
+            raise TrainingInterrupted(stop.signal, int(model.num_timesteps))
+        if not after.history or after.history[-1]["timesteps"] != model.num_timesteps:
+            # validate the final model too, so that the best model is chosen among all
+            after.init_callback(model)
+            after.report(None)
+        atomic_save_sb3(model, out / "model.zip")
         ck.init_callback(model)
         ck.save()
-        record(train_wall_s=prev_wall + wall)
-        raise TrainingInterrupted(stop.signal, int(model.num_timesteps))
-    if not after.history or after.history[-1]["timesteps"] != model.num_timesteps:
-        # validate the final model too, so that the best model is chosen among all
-        after.init_callback(model)
-        after.report(None)
-    atomic_save_sb3(model, out / "model.zip")
-    ck.init_callback(model)
-    ck.save()
+    finally:
+        logger.close()  # progress.csv (and the TensorBoard writer) closed, not left to the GC
     best = max(after.history, key=lambda r: r["return"])
     return {"model": "best_model.zip", "final_model": "model.zip", "timesteps_done":
             int(model.num_timesteps), "train_wall_s": prev_wall + wall,
@@ -769,10 +719,40 @@ def stop_on_signals(stop: StopRequest, graceful: bool = True):
             signal.signal(s, h if h is not None else signal.SIG_DFL)
 
 
-#: what train.py writes into a run directory (``--force`` removes these, and only these)
-RUN_OUTPUTS = (RUN_FILE, "model.zip", "best_model.zip", "model.pt", "accuracy.json",
-               "accuracy.png", "rule_sweep.json", "checkpoints", "tb", "progress*.csv",
-               "events.out.tfevents.*", "*.tmp", ".*.tmp*")
+#: the files train.py writes into a run directory, by exact name or pattern (``--force``
+#: removes these, and only these): the run record, models, ESAC's reports, logs, and the
+#: temporaries of atomic writes a killed run may leave
+RUN_FILES = (RUN_FILE, "model.zip", "best_model.zip", "model.pt", "accuracy.json",
+             "accuracy.png", "rule_sweep.json", "progress.csv")
+RUN_PATTERNS = (r"progress\.\d+\.csv",  # the earlier parts of a resumed run's log
+                r"events\.out\.tfevents\.\d+\.[\w.-]+",  # TensorBoard, runs before tb/
+                r"\.(model|best_model)\.\d+\.tmp\.zip",  # atomic_save_sb3
+                r"model\.pt\.\d+\.tmp",  # esac.save
+                r"\.(run|accuracy|rule_sweep)\.json\.[\w.-]+\.tmp")  # atomic JSON
+#: sub-folders train.py writes, and their files (the folder goes too once it is empty)
+RUN_FOLDERS = {
+    "checkpoints": (r"ckpt_\d{9}\.zip", r"replay_\d{9}\.(npz|pkl)",
+                    r"\.ckpt_\d{9}\.\d+\.tmp\.zip", r"\.replay_\d{9}\.npz\.[\w.-]+\.tmp"),
+    "tb": (r"events\.out\.tfevents\.\d+\.[\w.-]+",),
+}
+
+
+def run_files(out: Path) -> list[Path]:
+    """The files in ``out`` that train.py writes for a run (:data:`RUN_FILES`,
+    :data:`RUN_PATTERNS`, :data:`RUN_FOLDERS`): files or links with exactly those names, never
+    a folder's other contents."""
+    import re
+
+    def ours(p: Path, names: Sequence[str], patterns: Sequence[str]) -> bool:
+        return (p.is_file() or p.is_symlink()) and (
+            p.name in names or any(re.fullmatch(pat, p.name) for pat in patterns))
+
+    found = [p for p in out.iterdir() if ours(p, RUN_FILES, RUN_PATTERNS)]
+    for sub, patterns in RUN_FOLDERS.items():
+        d = out / sub
+        if d.is_dir() and not d.is_symlink():
+            found += [p for p in d.iterdir() if ours(p, (), patterns)]
+    return sorted(found)
 
 
 def checkpoint_of(out: Path, run: Mapping[str, Any]) -> Path | None:
@@ -805,6 +785,22 @@ def _resumable(out: Path, prev: Mapping[str, Any] | None, algo: str) -> Path:
     return ckpt
 
 
+def _resume_seed(out: Path, prev: Mapping[str, Any]) -> int:
+    """The training seed a run to resume records, checked: a training seed (below
+    :data:`MAX_TRAINING_SEED`), else a ValueError saying the run cannot be continued."""
+    old = prev.get("seed")
+    if not isinstance(old, int) or isinstance(old, bool):
+        raise ValueError(f"--resume: {out / RUN_FILE} records no training seed (seed: {old!r}); "
+                         f"it cannot be resumed: start it over with --force")
+    try:
+        _check_seed("training", old)
+    except ValueError as exc:
+        raise ValueError(f"--resume: {out / RUN_FILE} records seed {old}: {exc}; that run cannot "
+                         f"be continued: start it over with --force and a seed below "
+                         f"{MAX_TRAINING_SEED:,}") from None
+    return old
+
+
 def _occupied(out: Path, prev: Mapping[str, Any] | None) -> str:
     """Why a new run may not start in the non-empty ``out``, and what to do."""
     if prev is not None:
@@ -817,25 +813,39 @@ def _occupied(out: Path, prev: Mapping[str, Any] | None) -> str:
                 f"another --out")
     names = sorted(p.name for p in out.iterdir())
     return (f"{out} is not empty ({len(names)} entries: {', '.join(names[:5])}"
-            f"{', ...' if len(names) > 5 else ''}) and holds no {RUN_FILE}: choose a new or "
-            f"empty --out, or pass --force (removes only files train.py writes)")
+            f"{', ...' if len(names) > 5 else ''}) and holds no {RUN_FILE}: it is not a train.py "
+            f"run, so nothing in it is removed (not even with --force); choose a new or empty "
+            f"--out")
 
 
-def _start_over(out: Path) -> list[str]:
-    """Remove the previous run's files (:data:`RUN_OUTPUTS`) from ``out``, saying which."""
-    import shutil
-
-    gone = sorted({p for pat in RUN_OUTPUTS for p in out.glob(pat)})
-    names = [p.name + ("/" if p.is_dir() and not p.is_symlink() else "") for p in gone]
+def _start_over(out: Path, prev: Mapping[str, Any] | None) -> list[str]:
+    """``--force``: remove the previous run's files from ``out`` (:func:`run_files`: exactly
+    what train.py writes), listing them first; anything else stays. Only a folder holding a
+    train.py ``run.json`` is started over: another non-empty folder is refused (ValueError)."""
+    if not out.is_dir() or not any(out.iterdir()):
+        return []
+    if prev is None:
+        raise ValueError(_occupied(out, None))
+    if prev.get("algo") not in ALGOS:
+        raise ValueError(f"--force: {out / RUN_FILE} records algo {prev.get('algo')!r}, not one "
+                         f"of {list(ALGOS)}: not a train.py run; nothing in {out} is removed. "
+                         f"Choose a new or empty --out")
+    gone = run_files(out)
+    names = [p.relative_to(out).as_posix() for p in gone]
+    print(f"--force: starting {out} over; removing the previous run's "
+          f"{', '.join(names) if names else 'files (none found)'}", flush=True)
     for p in gone:
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p)
+        p.unlink(missing_ok=True)
+    for sub in RUN_FOLDERS:
+        d = out / sub
+        if d.is_dir() and not d.is_symlink() and not any(d.iterdir()):
+            d.rmdir()
+    kept = []
+    for p in sorted(out.iterdir()):
+        if p.name in RUN_FOLDERS and p.is_dir() and not p.is_symlink():
+            kept += [f"{p.name}/{q.name}" for q in sorted(p.iterdir())]
         else:
-            p.unlink(missing_ok=True)
-    kept = sorted(p.name for p in out.iterdir())
-    if names:
-        print(f"--force: starting {out} over; removed the previous run's {', '.join(names)}",
-              flush=True)
+            kept.append(p.name + ("/" if p.is_dir() else ""))
     if kept:
         print(f"--force: kept {', '.join(kept)} (not written by train.py)", flush=True)
     return names
@@ -857,8 +867,12 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
           trust_pickled_replay_buffer: bool = False) -> dict[str, Any]:
     """Train ``algo`` into ``out``; returns the final ``run.json`` content.
 
+    The configuration is checked whole before anything is written (:func:`check_config`).
     ``out`` must be new or empty unless ``resume`` (continue from its last checkpoint; an error
-    if there is none) or ``force`` (start over: the previous run's files are removed first).
+    if there is none, or if the run's seed is not a training seed) or ``force`` (start over a
+    folder holding a train.py ``run.json``: the files train.py wrote there, :func:`run_files`,
+    are listed, then removed; anything else stays, and a non-empty folder without
+    ``run.json`` is refused).
     SIGINT or SIGTERM stop training at the next step: the last checkpoint is saved, ``run.json``
     records ``status: "interrupted"`` and :class:`TrainingInterrupted` is raised. DQN replay
     buffers of older runs (pickles) are loaded on resume only with
@@ -871,29 +885,25 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     if resume and force:
         raise ValueError("--resume continues the run in --out, --force starts it over: give one")
     _check_seed("training", seed)
-    out = Path(out)
-    cfg = load_config(algo, budget, config, overrides)
-    if preset is not None:
-        cfg["preset"] = preset
-    if timesteps is not None:
-        cfg["timesteps"] = int(timesteps)
-    from pneugym.envs.conditions import PRESETS
-    if cfg["preset"] not in PRESETS:
-        raise ValueError(f"unknown preset {cfg['preset']!r}; choose one of {sorted(PRESETS)}")
+    # the whole configuration, checked before anything is written
+    cfg = load_config(algo, budget, config, overrides, preset=preset, timesteps=timesteps,
+                      seed=None if resume else seed)
+    raw_out, out = out, Path(out)
     if out.exists() or not resume:
-        check_output_dir(out, "run folder (--out)")
+        check_output_dir(raw_out, "run folder (--out)")
     prev = read_run(out) if out.is_dir() else None
     if resume:
         _resumable(out, prev, algo)
-        if prev.get("seed") != seed:
-            print(f"--resume: using the run's seed {prev['seed']} (not {seed})", flush=True)
-            seed = int(prev["seed"])
+        old = _resume_seed(out, prev)
+        if old != seed:
+            print(f"--resume: using the run's seed {old} (not {seed})", flush=True)
+            seed = old
         changes = _config_changes(prev.get("config", {}), cfg)
         if changes:
             print("--resume: the configuration differs from the run's (the new values apply): "
                   + "; ".join(changes), flush=True)
     elif force:
-        _start_over(out)
+        _start_over(out, prev)
         prev = None
     elif any(out.iterdir()):
         raise ValueError(_occupied(out, prev))
@@ -948,26 +958,66 @@ def model_path(run_dir: str | Path) -> Path | None:
     return p if p.is_file() else None
 
 
+def training_plan(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path = "runs",
+                  budget: str = "quick") -> dict[str, tuple[str, Path]]:
+    """What :func:`ensure_trained` will do for each of ``names``: ``("ready", model file)``,
+    ``("train", run dir)`` or ``("resume", run dir)``, checked before any training starts:
+    ``runs_dir`` and each run folder must be folders, a run to train must have a usable folder
+    and configuration (``budget``), a run to resume a checkpoint and a training seed. Raises
+    ValueError (a :class:`~agents.learned.RunFileError` for a damaged run.json) naming what is
+    wrong."""
+    runs = Path(runs_dir)
+    if runs.exists() and not runs.is_dir():
+        raise ValueError(f"--runs {runs_dir} is a file; learned policies live in (and are "
+                         f"trained into) folders under --runs: give a folder")
+    plan: dict[str, tuple[str, Path]] = {}
+    for name in names:
+        if name not in ALGOS:
+            raise ValueError(f"unknown learned policy {name!r}; choose from {list(ALGOS)}")
+        d = runs / name
+        if d.exists() and not d.is_dir():
+            raise ValueError(f"{d} is a file; the {name} run lives in the folder {d}: move the "
+                             f"file, or give another --runs")
+        p = model_path(d) if d.is_dir() else None
+        # a budget or configuration train() would refuse (checked whole only if it will train)
+        load_config(name, budget, seed=0, check=p is None)
+        if p is not None:
+            plan[name] = ("ready", p)
+            continue
+        prev = read_run(d) if d.is_dir() else None
+        resume = bool(prev and name != "esac" and prev.get("algo") == name
+                      and prev.get("checkpoint"))
+        try:
+            if resume:
+                _resumable(d, prev, name)
+                _resume_seed(d, prev)
+            elif d.is_dir() and any(d.iterdir()):
+                raise ValueError(_occupied(d, prev))
+        except ValueError as exc:
+            raise ValueError(f"cannot train {name} on demand into {d}: {exc}") from None
+        plan[name] = ("resume" if resume else "train", d)
+    return plan
+
+
 def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path = "runs",
                    budget: str = "quick", seed: int = 0, progress: bool = True
                    ) -> dict[str, Path]:
     """The model of each of ``names`` under ``runs_dir/<name>``, training those that are missing
-    with ``budget`` (evaluate.py's train-on-demand; an interrupted run is resumed)."""
+    with ``budget`` (evaluate.py's train-on-demand; an interrupted run is resumed). Every run is
+    checked (:func:`training_plan`) before the first training starts."""
     paths = {}
-    for name in names:
-        d = Path(runs_dir) / name
-        p = model_path(d)
-        if p is None:
-            prev = read_run(d)
-            resume = bool(prev and name != "esac" and prev.get("algo") == name
-                          and prev.get("checkpoint"))
-            print(f"== no trained {name} under {d}: "
-                  f"{'resuming' if resume else 'training'} it ({budget} budget)", flush=True)
-            train(name, d, seed=seed, budget=budget, progress=progress, resume=resume)
-            p = model_path(d)
-            if p is None:
-                raise RuntimeError(f"training {name} into {d} did not leave a finished model")
-        paths[name] = p
+    for name, (what, p) in training_plan(names, runs_dir, budget).items():
+        if what == "ready":
+            paths[name] = p
+            continue
+        print(f"== no trained {name} under {p}: "
+              f"{'resuming' if what == 'resume' else 'training'} it ({budget} budget)",
+              flush=True)
+        train(name, p, seed=seed, budget=budget, progress=progress, resume=what == "resume")
+        m = model_path(p)
+        if m is None:
+            raise RuntimeError(f"training {name} into {p} did not leave a finished model")
+        paths[name] = m
     return paths
 
 
@@ -987,14 +1037,14 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a config entry, e.g. algo.learning_rate=1e-4")
     ap.add_argument("--force", action="store_true",
-                    help="start over in a run folder that holds a run (removes its model, "
-                         "checkpoints and logs)")
+                    help="start over in a run folder that holds a train.py run.json (lists, then "
+                         "removes the files train.py wrote there; keeps anything else)")
     ap.add_argument("--trust-pickled-replay-buffer", action="store_true",
                     help="--resume of a DQN run from an older pneugym: load its pickled replay "
                          "buffer (a pickle can run code: only for your own runs)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    out = args.out or f"runs/{args.algo}"
+    out = args.out if args.out is not None else f"runs/{args.algo}"  # "" is refused, not replaced
     try:
         run = train(args.algo, out, args.preset, args.timesteps, args.seed, args.resume,
                     args.budget, args.config, args.set, not args.no_progress, args.force,
@@ -1011,7 +1061,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         raise SystemExit(128 + signal.Signals[exc.signal_name].value) from None
     best = run.get("best", {})
     frac = best.get("oracle_fraction")
-    print(f"done in {run['total_wall_s']:.0f} s: {args.out or f'runs/{args.algo}'}/{run['model']}"
+    print(f"done in {run['total_wall_s']:.0f} s: {out}/{run['model']}"
           f" (validation return {best.get('return', float('nan')):.4f}, oracle fraction "
           f"{'-' if frac is None else f'{frac:.3f}'})")
     return run

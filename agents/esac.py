@@ -539,6 +539,76 @@ def plot_accuracy(pred: ESACPredictor, data: Mapping[str, np.ndarray], path: str
 RULE_DEFAULTS = {"margin": 0.05, "max_time_increase": 0.2, "max_stick": 0.5,
                  "tolerance_m": 0.002, "lookahead": 0, "w_time": 0.3, "w_stick": 0.5,
                  "w_stall": 2.0, "hysteresis": 0.0}
+#: every rule parameter: (lowest, highest, what it is); ``lookahead`` is a flag (0 or 1),
+#: ``time_demand_s`` (optional, None: use ``max_time_increase``) must be > 0
+RULE_PARAMETERS = {
+    "margin": (0.0, 1.0, "the accepted predicted risk of an incomplete stroke, a probability "
+                         "in [0, 1]"),
+    "max_time_increase": (0.0, math.inf, "the time demand, a predicted stroke-time increase "
+                                         ">= 0 (0.1: +10 %)"),
+    "max_stick": (0.0, 1.0, "the accepted stick-slip risk, a probability in [0, 1]"),
+    "tolerance_m": (0.0, math.inf, "how close to the stroke end the predicted final position "
+                                   "must be, metres >= 0"),
+    "lookahead": (0, 1, "0 (cut as soon as rules 1-3 hold) or 1 (and only once waiting no "
+                        "longer pays)"),
+    "w_time": (0.0, math.inf, "the objective's weight of the time increase, >= 0"),
+    "w_stick": (0.0, math.inf, "the objective's weight of a stick-slip event, >= 0"),
+    "w_stall": (0.0, math.inf, "the objective's weight of a stall, >= 0"),
+    "hysteresis": (0.0, math.inf, "how much better a later cut must predict, >= 0"),
+    "time_demand_s": (0.0, math.inf, "an absolute time demand, seconds > 0 (or none)"),
+}
+
+
+def _rule_number(name: str, v: Any) -> Any:
+    """``v`` for rule parameter ``name`` if valid (``lookahead`` as an int), else raises
+    ValueError without a location (see :func:`check_rule`)."""
+    lo, hi, what = RULE_PARAMETERS[name]
+    try:
+        ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
+            and math.isfinite(float(v)) and lo <= float(v) <= hi
+    except OverflowError:  # an integer beyond any float
+        ok = False
+    if name == "lookahead":
+        ok = (isinstance(v, (bool, np.bool_)) or ok) and float(v) in (0.0, 1.0)
+        if ok:
+            return int(v)
+    elif name == "time_demand_s":
+        ok = ok and float(v) > 0
+    if not ok:
+        raise ValueError(f"{v!r}: expected {what}")
+    return v
+
+
+def check_rule(params: Mapping[str, Any], where: str, per_row: bool = False) -> dict[str, Any]:
+    """ESAC rule parameters (a model's saved rule, an override, a config's grid), checked: known
+    names (:data:`RULE_PARAMETERS`, with the nearest for a typo), each a finite number in its
+    range (``lookahead`` 0 or 1, ``time_demand_s`` > 0 or None). With ``per_row`` a parameter
+    may be an array with one value per observation row. Returns them (``lookahead`` as ints);
+    raises ValueError naming ``where`` and the parameter."""
+    from pneugym.params import did_you_mean
+
+    if not isinstance(params, Mapping):
+        raise ValueError(f"{where} is {params!r}; expected an object of rule parameters "
+                         f"({', '.join(RULE_PARAMETERS)})")
+    out: dict[str, Any] = {}
+    for name, v in params.items():
+        if name not in RULE_PARAMETERS:
+            raise ValueError(f"{where}: {name!r} is not an ESAC rule parameter"
+                             f"{did_you_mean(name, RULE_PARAMETERS)}; they are "
+                             f"{', '.join(RULE_PARAMETERS)}")
+        if name == "time_demand_s" and v is None:
+            out[name] = None
+            continue
+        try:
+            if per_row and isinstance(v, (list, tuple, np.ndarray)) and np.ndim(v) == 1:
+                vals = [_rule_number(name, x) for x in np.asarray(v).tolist()]
+                out[name] = np.asarray(vals, dtype=np.int64 if name == "lookahead" else float)
+            else:
+                out[name] = _rule_number(name, v.item() if isinstance(v, np.ndarray)
+                                         and v.ndim == 0 else v)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {name} = {exc}") from None
+    return out
 
 
 class ESACPolicy(LearnedPolicy):
@@ -575,6 +645,12 @@ class ESACPolicy(LearnedPolicy):
                  time_demand_s: float | np.ndarray | None = None, source: str = "the ESAC model"):
         super().__init__(env_layout, predictor.layout, source)
         self.predictor = predictor
+        rule = check_rule({"margin": margin, "max_time_increase": max_time_increase,
+                           "max_stick": max_stick, "tolerance_m": tolerance_m,
+                           "lookahead": lookahead, "w_time": w_time, "w_stick": w_stick,
+                           "w_stall": w_stall, "hysteresis": hysteresis,
+                           "time_demand_s": time_demand_s}, f"{source}: rule", per_row=True)
+        margin, lookahead = rule["margin"], rule["lookahead"]
         self.margin = np.asarray(margin, dtype=float)
         self.max_time_increase = np.asarray(max_time_increase, dtype=float)
         self.max_stick = np.asarray(max_stick, dtype=float)
@@ -585,8 +661,6 @@ class ESACPolicy(LearnedPolicy):
         self.w_stall = np.asarray(w_stall, dtype=float)
         self.hysteresis = np.asarray(hysteresis, dtype=float)
         self.time_demand_s = None if time_demand_s is None else np.asarray(time_demand_s, float)
-        if np.any(self.margin < 0) or np.any(self.margin > 1):
-            raise ValueError(f"margin = {margin!r} must be in [0, 1]")
         if np.any(self.lookahead != 0) and predictor.lookahead_s.size == 0:
             raise ValueError(f"{source} predicts a cut now only: lookahead needs a model "
                              f"trained with delay_input (train.py, esac fit.delay_input)")
@@ -676,11 +750,36 @@ def is_esac_file(path: str | Path) -> bool:
         return "data" not in z.namelist()
 
 
-def _read_blob(path: Path) -> dict[str, Any]:
-    """The saved dictionary of an ESAC model: tensors and strings only (``weights_only``)."""
+#: bounds of an ESAC network a model file may describe (the default is 3 x 128)
+MAX_HIDDEN_WIDTH = 4096
+MAX_HIDDEN_LAYERS = 16
+#: the metadata (``data.pkl`` in the torch file) and the whole file, inflated
+MAX_META_BYTES = 16 << 20
+MAX_FILE_BYTES = 1 << 30
+
+
+def _read_blob(path: Path) -> tuple[dict[str, Any], int]:
+    """The saved dictionary of an ESAC model (tensors and strings only: ``weights_only``), and
+    the bytes its entries hold once inflated (sizes checked before anything is read)."""
+    import zipfile
+
+    from .safe_load import check_zip_sizes
+
     torch = _torch()
     if not path.is_file():
         raise FileNotFoundError(f"no ESAC model at {path}")
+    stored = path.stat().st_size
+    if stored > MAX_FILE_BYTES:
+        raise ValueError(f"{path} is {stored:,} bytes; pneugym reads ESAC models of up to "
+                         f"{MAX_FILE_BYTES:,} bytes")
+    if zipfile.is_zipfile(path):
+        try:
+            with zipfile.ZipFile(path) as z:
+                stored = sum(check_zip_sizes(path, z, "ESAC model",
+                                             limits={"data.pkl": MAX_META_BYTES},
+                                             total=MAX_FILE_BYTES).values())
+        except (zipfile.BadZipFile, OSError, EOFError) as exc:
+            raise ValueError(f"{path} is not a readable ESAC model: {exc}") from None
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a damaged file
@@ -690,32 +789,86 @@ def _read_blob(path: Path) -> dict[str, Any]:
                          f"truncated, or another kind of file?") from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an ESAC model ({FORMAT})")
-    return blob
+    return blob, stored
+
+
+def torch_isfinite_all(t) -> bool:
+    """True if every entry of tensor ``t`` is finite."""
+    return bool(_torch().isfinite(t).all())
+
+
+def _meta_error(path: Path, key: str, value: Any, expected: str) -> ValueError:
+    r = repr(value)
+    return ValueError(f"{path}: its metadata's {key} is {r if len(r) <= 80 else r[:80] + '...'};"
+                      f" expected {expected} (not an ESAC model train.py wrote, or altered)")
 
 
 def _read_meta(path: Path, blob: Mapping[str, Any]) -> dict[str, Any]:
-    """The metadata of an ESAC model, checked for what :func:`load` needs."""
+    """The metadata of an ESAC model, checked before anything is built from it: ``n_in`` and
+    ``hidden`` (bounded: :data:`MAX_HIDDEN_WIDTH`, :data:`MAX_HIDDEN_LAYERS`), the observation
+    ``layout`` (:func:`agents.learned.check_layout_record`) and ``n_in`` consistent with it,
+    ``delay_input``, ``lookahead_s`` and the tuned ``rule`` (:func:`check_rule`). ValueError
+    (:class:`~agents.learned.LayoutMismatchError` for the layout) names the file and key."""
+    from .learned import check_layout_record, is_finite_number
+
     try:
         meta = json.loads(blob["meta"])
     except (KeyError, TypeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: its metadata is missing or not JSON ({exc})") from None
-    ok = (isinstance(meta, dict) and isinstance(meta.get("n_in"), int) and meta["n_in"] > 0
-          and isinstance(meta.get("hidden"), list)
-          and all(isinstance(h, int) and h > 0 for h in meta["hidden"])
-          and isinstance(meta.get("layout"), dict))
-    if not ok:
-        raise ValueError(f"{path}: its metadata lacks a valid n_in (int), hidden (list of int) "
-                         f"or layout (object); not an ESAC model train.py wrote")
+    except RecursionError:
+        raise ValueError(f"{path}: its metadata is JSON nested too deeply (not an ESAC model "
+                         f"train.py wrote)") from None
+    except ValueError as exc:  # e.g. an integer beyond Python's digit limit
+        raise ValueError(f"{path}: its metadata is not the JSON train.py writes: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: its metadata is a JSON {type(meta).__name__}; expected an "
+                         f"object (n_in, hidden, layout, rule, ...)")
+
+    def count(v: Any) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    n_in = meta.get("n_in")
+    if not count(n_in) or n_in <= 0:
+        raise _meta_error(path, "n_in", n_in, "the network's input size, an integer > 0")
+    hidden = meta.get("hidden")
+    if not (isinstance(hidden, list) and len(hidden) <= MAX_HIDDEN_LAYERS and all(
+            count(h) and 1 <= h <= MAX_HIDDEN_WIDTH for h in hidden)):
+        raise _meta_error(path, "hidden", hidden, f"a list of at most {MAX_HIDDEN_LAYERS} layer "
+                          f"widths from 1 to {MAX_HIDDEN_WIDTH}")
+    if "layout" not in meta:
+        raise _meta_error(path, "layout", None, "the observation layout it was trained on")
+    layout = check_layout_record(meta["layout"], f"{path}: its metadata's layout")
+    delay_input = meta.get("delay_input", False)
+    if not isinstance(delay_input, bool):
+        raise _meta_error(path, "delay_input", delay_input, "true or false")
+    if n_in != int(layout["size"]) + int(delay_input):
+        raise _meta_error(path, "n_in", n_in, f"{int(layout['size']) + int(delay_input)}: the "
+                          f"layout's size {layout['size']}"
+                          f"{' + 1 (the delay input)' if delay_input else ''}")
+    look = meta.get("lookahead_s", [])
+    if not (isinstance(look, list) and len(look) <= 1000 and all(
+            is_finite_number(d) and 0 <= d <= 3600 for d in look)):
+        raise _meta_error(path, "lookahead_s", look, "a list of delays in seconds (finite, 0 to "
+                          "3600)")
+    if "rule" in meta:
+        meta["rule"] = check_rule(meta["rule"], f"{path}: its metadata's rule")
     return meta
 
 
 def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
     """The predictor and the metadata of a saved ESAC model. Only tensors and strings are read
-    (``torch.load(weights_only=True)``); a damaged file or another kind of file is a ValueError
-    naming it."""
+    (``torch.load(weights_only=True)``); a damaged file, another kind of file or metadata out of
+    bounds (:func:`_read_meta`) is a ValueError naming it, raised before the network is built.
+    """
     path = Path(path)
-    blob = _read_blob(path)
+    blob, stored = _read_blob(path)
     meta = _read_meta(path, blob)
+    widths = [int(meta["n_in"]), *meta["hidden"], len(CLASS_HEADS) + len(REG_HEADS)]
+    need = 4 * sum(a * b + b for a, b in zip(widths, widths[1:]))
+    if need > stored:
+        raise ValueError(f"{path}: its metadata describes a network (n_in {meta['n_in']}, hidden "
+                         f"{meta['hidden']}) of {need:,} bytes of weights, but the file holds "
+                         f"{stored:,}: altered or damaged; pneugym does not build it")
     net = make_net(int(meta["n_in"]), meta["hidden"])
     try:
         net.load_state_dict(blob.get("state_dict"))
@@ -723,21 +876,30 @@ def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
         first = (str(exc).strip().splitlines() or [""])[0][:200]
         raise ValueError(f"{path}: its weights do not fit the network its metadata describes "
                          f"(n_in {meta['n_in']}, hidden {meta['hidden']}): {first}") from None
+    state = net.state_dict()
+    bad = [k for k, t in state.items() if not torch_isfinite_all(t)]
+    bad += [k for k in ("in_std", "out_std") if k not in bad and not bool((state[k] > 0).all())]
+    if bad:
+        raise ValueError(f"{path}: its weights {bad} hold NaN, infinite or (for a scale) "
+                         f"non-positive values: a damaged file; retrain it")
     net.eval()
-    return ESACPredictor(net, meta["layout"], bool(meta.get("delay_input", False)),
+    return ESACPredictor(net, meta["layout"], meta.get("delay_input", False),
                          meta.get("lookahead_s", ())), meta
 
 
 def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) -> ESACPolicy:
     """The ESAC controller saved at ``path`` for an environment of ``env_layout``, with the saved
     (tuned) rule unless overridden by ``rule``."""
-    unknown = sorted(set(rule) - set(RULE_DEFAULTS) - {"time_demand_s"})
+    from pneugym.params import did_you_mean
+
+    unknown = sorted(set(rule) - set(RULE_PARAMETERS))
     if unknown:
-        raise ValueError(f"unknown ESAC rule parameter(s) {unknown}; choose from "
-                         f"{sorted(RULE_DEFAULTS) + ['time_demand_s']}")
+        raise ValueError(f"unknown ESAC rule parameter(s) {unknown}"
+                         f"{did_you_mean(unknown[0], RULE_PARAMETERS)}; choose from "
+                         f"{list(RULE_PARAMETERS)}")
+    rule = check_rule(rule, f"ESAC model {path}: the rule override")
     pred, meta = load(path)
-    saved = {k: v for k, v in meta.get("rule", {}).items() if k in RULE_DEFAULTS}
-    params = {**RULE_DEFAULTS, **saved, **rule}
+    params = {**RULE_DEFAULTS, **meta.get("rule", {}), **rule}
     return ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
 
 

@@ -137,13 +137,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    from pneugym.outputs import atomic_write_json, check_output_dir
+    from pneugym.outputs import atomic_write_json, check_output_file
     from pneugym.provenance import provenance
 
     try:  # before the calibration: an unusable path must not cost the run
-        check_output_dir(Path(args.out).parent, "--out's folder")
+        check_output_file(args.out, "--out")
         if args.plot:
-            check_output_dir(Path(args.plot).parent, "--plot's folder")
+            check_output_file(args.plot, "--plot")
     except ValueError as exc:
         ap.error(str(exc))
     result = calibrate(seed=args.seed)

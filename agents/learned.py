@@ -26,6 +26,104 @@ class LayoutMismatchError(ValueError):
     """A saved model and an environment disagree on the observation layout."""
 
 
+#: bounds of a recorded observation layout: far above any real one, low enough that a crafted
+#: file cannot make a loader allocate gigabytes from a few bytes
+MAX_HISTORY = 1000
+MAX_FEATURES = 64
+#: features every learned policy reads (the cut-off latch, the episode clock, ESAC's stroke)
+REQUIRED_FEATURES = ("position", "time", "supply_cut")
+
+
+def is_finite_number(v: Any) -> bool:
+    """True for one finite real number (a bool, text, NaN, an integer beyond floats is not)."""
+    import math
+
+    try:
+        return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                and math.isfinite(float(v)))
+    except OverflowError:  # an integer beyond any float
+        return False
+
+
+def _count(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_features(value: Any, key: str, where: str, allow_empty: bool) -> list[str]:
+    if not isinstance(value, list) or (not value and not allow_empty) \
+            or len(value) > MAX_FEATURES:
+        raise LayoutMismatchError(
+            f"{where}: {key} is {_short(value)}; expected a list of up to {MAX_FEATURES} "
+            f"features ({{'name', 'unit', 'scale', 'offset'}} objects, as observation_layout() "
+            f"writes them)")
+    names = []
+    for i, f in enumerate(value):
+        if not isinstance(f, dict):
+            raise LayoutMismatchError(f"{where}: {key}[{i}] is {_short(f)}; expected a feature "
+                                      f"object with 'name' and 'scale'")
+        name = f.get("name")
+        if not isinstance(name, str) or not name:
+            raise LayoutMismatchError(f"{where}: {key}[{i}].name is {_short(name)}; expected "
+                                      f"the feature's name (text)")
+        if not is_finite_number(f.get("scale")) or not float(f["scale"]) > 0:
+            raise LayoutMismatchError(f"{where}: {key}[{i}] ({name!r}).scale is "
+                                      f"{_short(f.get('scale'))}; expected a finite number > 0")
+        for opt in ("unit", "offset"):
+            if opt in f and not isinstance(f[opt], str):
+                raise LayoutMismatchError(f"{where}: {key}[{i}] ({name!r}).{opt} is "
+                                          f"{_short(f[opt])}; expected text")
+        if name in names:
+            raise LayoutMismatchError(f"{where}: {key} names {name!r} twice")
+        names.append(name)
+    return names
+
+
+def _short(v: Any, n: int = 80) -> str:
+    r = repr(v)
+    return r if len(r) <= n else r[:n] + "..."
+
+
+def check_layout_record(layout: Any, where: str) -> dict[str, Any]:
+    """A recorded observation layout (an SB3 zip's ``pneugym_layout``, ESAC's metadata, a
+    run.json's ``observation_layout``), checked for structure and types before anything is
+    built from it: ``features`` (names, finite scales > 0; ``position``, ``time`` and
+    ``supply_cut`` among them), ``param_features``, ``history`` (1 to :data:`MAX_HISTORY`),
+    ``size`` (= history x features + privileged features) and ``control_period_s``.
+    Raises :class:`LayoutMismatchError` naming ``where`` (file and key) and the entry."""
+    if not isinstance(layout, dict):
+        raise LayoutMismatchError(f"{where} is {_short(layout)}; expected an object (the "
+                                  f"observation_layout() of the environment it was trained on)")
+    for key in ("features", "history", "size", "control_period_s"):
+        if key not in layout:
+            raise LayoutMismatchError(f"{where} has no {key!r}; expected the observation_layout() "
+                                      f"of the environment it was trained on (features, "
+                                      f"history, size, control_period_s)")
+    names = _check_features(layout["features"], "features", where, allow_empty=False)
+    missing = [n for n in REQUIRED_FEATURES if n not in names]
+    if missing:
+        raise LayoutMismatchError(f"{where}: features {names} lack {missing}; a cut-off policy "
+                                  f"reads them (not a pneugym/CutOff-v0 layout)")
+    params = layout.get("param_features", [])
+    if params is None:
+        params = []
+    _check_features(params, "param_features", where, allow_empty=True)
+    h = layout["history"]
+    if not _count(h) or not 1 <= h <= MAX_HISTORY:
+        raise LayoutMismatchError(f"{where}: history is {_short(h)}; expected an integer from 1 "
+                                  f"to {MAX_HISTORY} (sensor samples per observation)")
+    size = layout["size"]
+    want = h * len(names) + len(params)
+    if not _count(size) or size != want:
+        raise LayoutMismatchError(f"{where}: size is {_short(size)}; expected {want} (history "
+                                  f"{h} x {len(names)} features + {len(params)} privileged "
+                                  f"features): the layout is inconsistent (altered or damaged)")
+    cp = layout["control_period_s"]
+    if not is_finite_number(cp) or not float(cp) > 0:
+        raise LayoutMismatchError(f"{where}: control_period_s is {_short(cp)}; expected a "
+                                  f"finite number of seconds > 0")
+    return layout
+
+
 def _feature_key(f: Mapping[str, Any]) -> tuple:
     return (f["name"], f.get("unit"), round(float(f["scale"]), 12), f.get("offset", "0"))
 
@@ -147,6 +245,57 @@ class LearnedPolicy(Policy):
 
 #: How an SB3 model's network becomes a deterministic cut-off decision (see :class:`SB3Policy`).
 DECISION_RULES = ("argmax", "quantile", "hazard", "advantage")
+#: what each rule's ``value`` means, and its valid range
+DECISION_VALUES = {
+    "argmax": "a finite number (argmax does not use it)",
+    "quantile": "a probability in (0, 1] (cut once P(cut by now) >= value)",
+    "hazard": "a probability in (0, 1] (cut at the first step with p_cut >= value)",
+    "advantage": "a finite number (cut once Q(cut) - Q(keep) >= value)",
+}
+
+
+def decision_value_problem(rule: str, value: Any) -> str | None:
+    """What is wrong with ``value`` for the decision ``rule`` (None: nothing). ``value`` is one
+    number (a bool, text, a list or NaN is not)."""
+    if not is_finite_number(value):
+        return f"expected {DECISION_VALUES[rule]}"
+    if rule in ("quantile", "hazard") and not 0.0 < float(value) <= 1.0:
+        return f"expected {DECISION_VALUES[rule]}"
+    return None
+
+
+def check_decision(decision: Any, where: str, per_row: bool = False) -> dict[str, Any]:
+    """A decision rule (``{"rule": ..., "value": ...}``; an SB3 zip's ``pneugym_decision``, an
+    override, a config entry), checked: ``rule`` one of :data:`DECISION_RULES`, ``value`` a
+    finite number in the rule's range (:data:`DECISION_VALUES`), optional for ``argmax``. With
+    ``per_row``, ``value`` may also be an array of such numbers (one per observation row).
+    Raises ValueError naming ``where``."""
+    if not isinstance(decision, Mapping):
+        raise ValueError(f"{where} is {_short(decision)}; expected an object "
+                         f"{{'rule': one of {list(DECISION_RULES)}, 'value': number}}")
+    extra = sorted(set(decision) - {"rule", "value"}, key=str)
+    if extra:
+        raise ValueError(f"{where} has {extra}; a decision has only 'rule' and 'value'")
+    rule = decision.get("rule")
+    if not isinstance(rule, str) or rule not in DECISION_RULES:
+        from pneugym.params import did_you_mean
+
+        raise ValueError(f"{where}: the decision rule is {_short(rule)}; expected one of "
+                         f"{list(DECISION_RULES)}{did_you_mean(rule, DECISION_RULES)}")
+    out = {"rule": rule}
+    if "value" in decision:
+        value = decision["value"]
+        if per_row and not isinstance(value, (str, bytes, Mapping)) and np.ndim(value) == 1:
+            values = list(np.asarray(value).tolist())
+        else:
+            values = [value]
+        for v in values:
+            problem = decision_value_problem(rule, v)
+            if problem:
+                raise ValueError(f"{where}: the decision value is {_short(value)} for the "
+                                 f"{rule} rule; {problem}")
+        out["value"] = value
+    return out
 
 
 class SB3Policy(LearnedPolicy):
@@ -195,10 +344,9 @@ class SB3Policy(LearnedPolicy):
             raise LayoutMismatchError(f"{source}: the network takes {shape}, its recorded layout "
                                       f"has size {full['size']}")
         self.model = model
-        self.decision = dict(decision or {"rule": "argmax"})
-        rule = self.decision.get("rule")
-        if rule not in DECISION_RULES:
-            raise ValueError(f"decision rule {rule!r}: choose one of {DECISION_RULES}")
+        self.decision = check_decision(decision or {"rule": "argmax"},
+                                       f"{source}: decision", per_row=True)
+        rule = self.decision["rule"]
         if rule in ("quantile", "hazard") and not hasattr(model.policy, "get_distribution"):
             raise ValueError(f"{source}: the {rule} rule needs a stochastic policy (PPO, A2C)")
         if rule == "advantage" and not hasattr(model, "q_net"):
@@ -268,7 +416,14 @@ def load_run_file(f: Path) -> dict[str, Any]:
         raise RunFileError(f"{f} cannot be read: {exc}") from None
     except json.JSONDecodeError as exc:
         raise RunFileError(f"{f} is not valid JSON ({exc.msg}, line {exc.lineno}): train.py "
-                           f"writes it whole; restore it, or train again") from None
+                           f"writes it whole; restore it, or train again into a new folder"
+                           ) from None
+    except RecursionError:
+        raise RunFileError(f"{f} is not a run record: its JSON is nested too deeply (train.py "
+                           f"writes a few levels); restore it, or train again into a new "
+                           f"folder") from None
+    except ValueError as exc:  # e.g. an integer beyond Python's digit limit
+        raise RunFileError(f"{f} is not a run record train.py wrote: {exc}") from None
     if not isinstance(run, dict):
         raise RunFileError(f"{f} holds a JSON {type(run).__name__}, expected an object (the "
                            f"run record train.py writes)")

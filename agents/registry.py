@@ -39,13 +39,40 @@ def _model_file(p: Path) -> Path:
     return p
 
 
+def _decision(f: Path, saved: Any, override: Any) -> Any:
+    """The decision rule of the SB3 model ``f``: the one saved with it (``pneugym_decision``,
+    checked on load), with ``override`` (``rule`` and/or ``value``) applied and checked."""
+    from .learned import DECISION_VALUES, check_decision
+
+    if override is None:
+        return saved
+    if not isinstance(override, dict):
+        raise ValueError(f"decision override {override!r} for {f}: expected rule= and/or value=")
+    base = dict(saved or {"rule": "argmax"})
+    over = dict(override)
+    rule = over.setdefault("rule", base["rule"])
+    check_decision({"rule": rule}, f"{f}: the decision override")  # a known rule first
+    if "value" not in over:
+        if rule == base["rule"] and "value" in base:
+            over["value"] = base["value"]
+        elif rule != "argmax":
+            raise ValueError(f"{f}: the decision override sets the {rule!r} rule without a "
+                             f"value; give value= too ({DECISION_VALUES.get(rule, '')})")
+    elif rule == "argmax":
+        raise ValueError(f"{f}: the decision override gives value={over['value']!r} for the "
+                         f"argmax rule, which has no value; give rule= too (quantile, hazard "
+                         f"or advantage)")
+    return check_decision(over, f"{f}: the decision override")
+
+
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``) or a
     stable-baselines3 ``.zip`` (PPO, DQN or A2C). The model's observation layout (recorded in the
     file, or in its run's ``run.json``) must match the environment's up to the history, else a
     :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` override the ESAC
-    rule's parameters, or (``decision=``) an SB3 model's decision rule (default: the one train.py
-    tuned and saved with the model).
+    rule's parameters, or (``decision=``, a dict of ``rule`` and/or ``value``, and nothing
+    else) an SB3 model's decision rule (default: the one train.py tuned and saved with the
+    model); both are checked, and an override meant for the other kind of model is refused.
 
     Nothing in the file is unpickled (:mod:`agents.safe_load`): a model holding a pickled object
     pneugym cannot replace by a plain value is refused (:class:`~agents.safe_load.
@@ -61,16 +88,28 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     from . import esac
 
     if f.suffix == ".pt" or (run or {}).get("algo") == "esac":
+        if "decision" in kwargs:
+            raise ValueError(f"{f} is an ESAC model: rule= and value= override the decision "
+                             f"of a stable-baselines3 model; ESAC's rule parameters are "
+                             f"{sorted(esac.RULE_PARAMETERS)}")
         return esac.load_policy(f, layout, **kwargs)
     if not zipfile.is_zipfile(f):
         raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
                          f"(.pt)")
+    extra = sorted(set(kwargs) - {"decision"})
+    if extra:
+        esac_keys = [k for k in extra if k in esac.RULE_PARAMETERS]
+        raise ValueError(f"{f} is a stable-baselines3 model: its decision override takes rule= "
+                         f"and value= only, not {extra}"
+                         + (f" ({esac_keys} are ESAC rule parameters)" if esac_keys else ""))
     from .safe_load import ALGOS, load_sb3
 
     algo = (run or {}).get("algo")
-    model = load_sb3(f, algo if algo in ALGOS else None, obs_size=int(layout["size"]))
-    model_layout = model.__dict__.get("pneugym_layout") or (run or {}).get("observation_layout")
-    decision = kwargs.get("decision") or model.__dict__.get("pneugym_decision")
+    run_layout = (run or {}).get("observation_layout")
+    model = load_sb3(f, algo if algo in ALGOS else None, obs_size=int(layout["size"]),
+                     layout=run_layout)
+    model_layout = model.__dict__.get("pneugym_layout") or run_layout
+    decision = _decision(f, model.__dict__.get("pneugym_decision"), kwargs.get("decision"))
     return SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
 
 

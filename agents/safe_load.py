@@ -6,6 +6,12 @@ schedules, buffers...) are cloudpickled: unpickling them runs whatever code the 
 :func:`load_sb3` reads ``data`` with :mod:`json` alone and hands SB3 a plain replacement for
 *every* pickled entry (``custom_objects``), built from the JSON and an allowlist; an entry it cannot
 replace is refused (:class:`UnsafeModelError`). SB3 then never reaches ``cloudpickle.loads``.
+Before anything is read or built, sizes are checked, so that a small file cannot make pneugym
+allocate gigabytes: the zip's entries from its directory (:func:`check_zip_sizes`), the recorded
+observation size against the recorded layout (or the environment), and the network
+``policy_kwargs`` describe against the weights the file holds. The recorded layout
+(``pneugym_layout``) and decision rule (``pneugym_decision``) are checked for structure, types
+and ranges; a problem is a ValueError naming the file and the key.
 
 Replay buffers are written as plain numpy arrays (:func:`save_replay_buffer`, ``.npz``) and read
 back with ``allow_pickle=False`` after checking every shape and dtype (:func:`load_replay_buffer`).
@@ -19,7 +25,6 @@ import io
 import json
 import os
 import pickle  # for its error class only: nothing here unpickles
-import tempfile
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -46,8 +51,54 @@ NEVER_SAVED = ("policy", "device", "env", "replay_buffer", "rollout_buffer", "_v
 REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 
 
+#: limits checked before anything is read or built (a small file must not make pneugym allocate
+#: gigabytes): the zip on disk, its entries once inflated, the JSON ``data`` entry, each weights
+#: file, the number of entries, and how much an entry may inflate (a zip bomb)
+MAX_MODEL_BYTES = 2 << 30
+MAX_DATA_BYTES = 16 << 20
+MAX_WEIGHTS_BYTES = 1 << 30
+MAX_ENTRIES = 64
+MAX_INFLATION = 1000
+#: the largest observation a model may take (a recorded layout's size is bounded far below it)
+MAX_OBSERVATION_SIZE = 65536
+
+
 class UnsafeModelError(ValueError):
     """A model file holds something pneugym will not load (a pickled object it cannot replace)."""
+
+
+def check_zip_sizes(path: Path, z: zipfile.ZipFile, what: str = "stable-baselines3 model",
+                    limits: Mapping[str, int] | None = None,
+                    total: int = MAX_MODEL_BYTES) -> dict[str, int]:
+    """The inflated size of every entry of the zip ``z`` (``path``), from its directory, checked
+    before any is read: at most :data:`MAX_ENTRIES` entries, each within ``limits`` (by name
+    suffix; default :data:`MAX_DATA_BYTES` for ``data``, :data:`MAX_WEIGHTS_BYTES` for the
+    rest), ``total`` in all, and none inflating more than :data:`MAX_INFLATION` times
+    (beyond 16 MB). Raises ValueError naming the file and the entry."""
+    infos = z.infolist()
+    if len(infos) > MAX_ENTRIES:
+        raise ValueError(f"{path} holds {len(infos)} entries; a {what} has a handful (at most "
+                         f"{MAX_ENTRIES} are read): not a {what}, or altered")
+    sizes: dict[str, int] = {}
+    for info in infos:
+        limit = MAX_WEIGHTS_BYTES
+        for suffix, lim in (limits or {"data": MAX_DATA_BYTES}).items():
+            if info.filename == suffix or info.filename.endswith("/" + suffix):
+                limit = lim
+        if info.file_size > limit:
+            raise ValueError(f"{path}: its entry {info.filename!r} inflates to "
+                             f"{info.file_size:,} bytes, more than the {limit:,} a {what} "
+                             f"needs; pneugym does not read it (a damaged or crafted file)")
+        if info.file_size > 16 << 20 and info.file_size > MAX_INFLATION * max(
+                info.compress_size, 1):
+            raise ValueError(f"{path}: its entry {info.filename!r} inflates {info.compress_size:,}"
+                             f" bytes to {info.file_size:,} (a zip bomb); pneugym does not read "
+                             f"it")
+        sizes[info.filename] = sizes.get(info.filename, 0) + info.file_size
+    if sum(sizes.values()) > total:
+        raise ValueError(f"{path}: its entries inflate to {sum(sizes.values()):,} bytes in all, "
+                         f"more than the {total:,} pneugym reads from a {what}")
+    return sizes
 
 
 def _refuse_pickle(path: Path, key: str, hint: str = "") -> UnsafeModelError:
@@ -73,9 +124,13 @@ def _nested_pickle(value: Any) -> bool:
 
 
 def read_model_data(path: str | Path) -> tuple[bytes, dict[str, Any]]:
-    """The bytes of the SB3 zip at ``path`` and its ``data`` entry, parsed as JSON only."""
+    """The bytes of the SB3 zip at ``path`` and its ``data`` entry, parsed as JSON only; the
+    file's and its entries' sizes are checked first (:func:`check_zip_sizes`)."""
     p = Path(path)
     try:
+        if p.stat().st_size > MAX_MODEL_BYTES:
+            raise ValueError(f"{p} is {p.stat().st_size:,} bytes; pneugym reads models of up to "
+                             f"{MAX_MODEL_BYTES:,} bytes")
         raw = p.read_bytes()
     except OSError as exc:
         raise ValueError(f"{p} cannot be read: {exc.strerror or exc}") from None
@@ -84,7 +139,9 @@ def read_model_data(path: str | Path) -> tuple[bytes, dict[str, Any]]:
             if "data" not in z.namelist():
                 raise ValueError(f"{p} is a zip without the 'data' entry of a stable-baselines3 "
                                  f"model")
-            text = z.read("data").decode("utf-8")
+            check_zip_sizes(p, z)
+            with z.open("data") as fh:
+                text = fh.read(MAX_DATA_BYTES + 1).decode("utf-8")
     except (zipfile.BadZipFile, UnicodeDecodeError, EOFError, OSError) as exc:
         raise ValueError(f"{p} is not a readable stable-baselines3 model (.zip): {exc}") from None
     try:
@@ -92,6 +149,12 @@ def read_model_data(path: str | Path) -> tuple[bytes, dict[str, Any]]:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{p}: its 'data' entry is not JSON ({exc.msg} at line {exc.lineno})"
                          ) from None
+    except RecursionError:
+        raise ValueError(f"{p}: its 'data' entry is JSON nested too deeply for a "
+                         f"stable-baselines3 model (altered or damaged)") from None
+    except ValueError as exc:  # e.g. an integer beyond Python's digit limit
+        raise ValueError(f"{p}: its 'data' entry is not the JSON of a stable-baselines3 model: "
+                         f"{exc}") from None
     if not isinstance(data, dict):
         raise ValueError(f"{p}: its 'data' entry is a JSON {type(data).__name__}, expected an "
                          f"object")
@@ -123,22 +186,86 @@ def _int_list(v: Any) -> list[int] | None:
     return None
 
 
-def _obs_size(path: Path, data: Mapping[str, Any], default: int | None) -> tuple[int, str]:
-    """The observation size a model records, and where it was read from."""
-    shape = _int_list(data.get("observation_space", {}).get("_shape")) if isinstance(
-        data.get("observation_space"), dict) else None
+def recorded_layout(path: Path, data: Mapping[str, Any],
+                    fallback: Mapping[str, Any] | None = None) -> dict[str, Any] | None:
+    """The observation layout a model records (``pneugym_layout``), else ``fallback`` (its
+    run.json's), checked (:func:`agents.learned.check_layout_record`); None if neither."""
+    from .learned import check_layout_record
+
+    if data.get("pneugym_layout") is not None:
+        return check_layout_record(data["pneugym_layout"], f"{path}: pneugym_layout")
+    if fallback is not None:
+        return check_layout_record(fallback, f"{path}: the observation_layout of its run.json")
+    return None
+
+
+def _obs_size(path: Path, data: Mapping[str, Any], layout: Mapping[str, Any] | None,
+              default: int | None) -> tuple[int, str]:
+    """The observation size a model takes, and where it was read from: the recorded
+    ``observation_space._shape``, which must equal the recorded layout's size (else
+    ``default``, the environment's), checked before any space or network is built."""
+    space = data.get("observation_space")
+    shape = _int_list(space.get("_shape")) if isinstance(space, dict) else None
+    want, where = (int(layout["size"]), "its recorded observation layout") if layout \
+        else (default, "the environment's observation") if default is not None else (None, "")
     if shape is not None:
         if len(shape) != 1:
             raise LayoutMismatchError(f"{path}: the model takes observations of shape "
                                       f"{tuple(shape)}; the cut-off environment's are flat")
+        if want is not None and shape[0] != want:
+            raise LayoutMismatchError(f"{path}: observation_space._shape is {tuple(shape)}, but "
+                                      f"{where} has size {want}: the model was trained on "
+                                      f"another observation layout, or the file was altered")
+        if shape[0] > MAX_OBSERVATION_SIZE:
+            raise ValueError(f"{path}: observation_space._shape is {tuple(shape)}; the cut-off "
+                             f"environment's observations have at most {MAX_OBSERVATION_SIZE} "
+                             f"entries (a damaged or crafted file)")
         return shape[0], "observation_space._shape"
-    lay = data.get("pneugym_layout")
-    size = lay.get("size") if isinstance(lay, dict) else None
-    if isinstance(size, int) and not isinstance(size, bool) and size > 0:
-        return size, "pneugym_layout.size"
-    if default is None:
+    if want is None:
         raise ValueError(f"{path} records no observation size")
-    return int(default), "the environment's layout"
+    return int(want), where
+
+
+def _objects_in_weights(path: Path) -> UnsafeModelError:
+    return UnsafeModelError(f"{path}: a weights file (.pth) in it holds Python objects beside "
+                            f"tensors; pneugym loads tensors only and does not unpickle them")
+
+
+class _WeightsTooSmall(ValueError):
+    """``policy.pth`` is smaller than the network the model describes."""
+
+
+def _weights_hold_objects(raw: bytes) -> bool:
+    """True if the (small) ``policy.pth`` of the SB3 zip ``raw`` holds Python objects: read
+    with ``torch.load(weights_only=True)``, which unpickles nothing but tensors."""
+    import torch
+
+    with zipfile.ZipFile(io.BytesIO(raw)) as z:
+        pth = z.read("policy.pth")
+    try:
+        torch.load(io.BytesIO(pth), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        return True
+    except Exception:  # noqa: BLE001 - damaged: reported as too small by the caller
+        return False
+    return False
+
+
+def _check_decision(path: Path, algo: str, decision: Any) -> None:
+    """The decision rule a model records (``pneugym_decision``), checked for its algorithm."""
+    from .learned import check_decision
+
+    if decision is None:
+        return
+    d = check_decision(decision, f"{path}: pneugym_decision")
+    if d["rule"] in ("quantile", "hazard") and algo == "dqn":
+        raise ValueError(f"{path}: pneugym_decision: the {d['rule']} rule needs a stochastic "
+                         f"policy (PPO, A2C); this is a DQN model")
+    if d["rule"] == "advantage" and algo != "dqn":
+        raise ValueError(f"{path}: pneugym_decision: the advantage rule needs a Q-network "
+                         f"(DQN); this is a {algo.upper()} model")
+    if d["rule"] != "argmax" and "value" not in d:
+        raise ValueError(f"{path}: pneugym_decision has the {d['rule']} rule without a value")
 
 
 def _check_action_space(path: Path, entry: Any) -> None:
@@ -196,14 +323,43 @@ def _policy_kwargs(path: Path, entry: Any) -> dict[str, Any]:
         if key in (":type:", SERIALIZED):
             continue
         if key in CLASS_KWARGS or (isinstance(value, str) and value.startswith("<")):
-            if value not in allowed:
-                raise _refuse_pickle(path, "policy_kwargs", f"its {key} is {value}, which "
+            if not isinstance(value, str) or value not in allowed:
+                raise _refuse_pickle(path, "policy_kwargs", f"its {key} is "
+                                     f"{value if isinstance(value, str) else repr(value)}, which "
                                      f"pneugym does not rebuild; {hint}")
             value = allowed[value]
         elif _nested_pickle(value):
             raise _refuse_pickle(path, "policy_kwargs")
         out[key] = value
     return out
+
+
+def _layers(path: Path, key: str, v: Any) -> list[int]:
+    if not (isinstance(v, list) and len(v) <= 64 and all(
+            isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in v)):
+        raise ValueError(f"{path}: policy_kwargs.{key} is {v!r}; expected a list of layer "
+                         f"widths (positive integers, e.g. [64, 64])")
+    return v
+
+
+def _min_parameters(path: Path, algo: str, pkw: Mapping[str, Any], n_obs: int) -> int:
+    """A lower bound of the parameters of the network ``policy_kwargs`` describe for ``n_obs``
+    inputs: the critic's (PPO, A2C: value net) or the Q-network's MLP. Its weights must be in
+    the file, so a larger count than the file holds is refused before anything is built."""
+    arch = pkw.get("net_arch")
+    if arch is None:
+        layers = [64, 64]
+    elif isinstance(arch, dict) and algo != "dqn":
+        extra = sorted(set(arch) - {"pi", "vf"}, key=str)
+        if extra:
+            raise ValueError(f"{path}: policy_kwargs.net_arch has {extra}; expected 'pi' and "
+                             f"'vf' (the actor's and the critic's layers)")
+        layers = _layers(path, "net_arch.vf", arch.get("vf", []))
+        _layers(path, "net_arch.pi", arch.get("pi", []))
+    else:
+        layers = _layers(path, "net_arch", arch)
+    widths = [n_obs, *layers, 1 if algo != "dqn" else 2]
+    return sum(a * b + b for a, b in zip(widths, widths[1:]))
 
 
 def _policy_class(path: Path, algo: str, pkw: Mapping[str, Any], cls):
@@ -227,14 +383,20 @@ def _default(cls, key: str) -> Any:
 
 def replacements(path: str | Path, algo: str, data: Mapping[str, Any], cls=None, env=None,
                  obs_size: int | None = None,
-                 schedules: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                 schedules: Mapping[str, Any] | None = None,
+                 layout: Mapping[str, Any] | None = None,
+                 weights_bytes: int | None = None) -> dict[str, Any]:
     """SB3 ``custom_objects`` that replace every pickled entry of ``data`` with a plain value.
 
     ``env`` (an SB3 VecEnv, for resuming) or ``obs_size`` (the environment's observation size,
-    used if the file records none) fix the observation space; ``schedules`` override
-    :data:`SCHEDULES` (a resumed run's config). Raises :class:`UnsafeModelError` for a pickled
-    entry without a safe replacement, :class:`LayoutMismatchError` for a size the environment
-    does not have, ValueError for another action space."""
+    used if the file records neither a size nor a layout) fix the observation space;
+    ``layout`` is the observation layout recorded beside the model (its run.json's), used when
+    the file has no ``pneugym_layout``; ``schedules`` override :data:`SCHEDULES` (a resumed
+    run's config); ``weights_bytes``, the inflated size of ``policy.pth``, bounds the network
+    ``policy_kwargs`` may describe. The recorded layout and decision rule are checked, and
+    every size before anything is built. Raises :class:`UnsafeModelError` for a pickled
+    entry without a safe replacement, :class:`LayoutMismatchError` for a size or layout the
+    environment does not have, ValueError for another action space or a malformed entry."""
     from gymnasium import spaces
 
     from pneugym.envs.cutoff import OBS_BOUND
@@ -250,11 +412,25 @@ def replacements(path: str | Path, algo: str, data: Mapping[str, Any], cls=None,
     if bad:
         raise UnsafeModelError(f"{path} holds {bad}, which stable-baselines3 never saves: the "
                                f"file was altered; pneugym does not load it")
+    for key in ("pneugym_layout", "pneugym_decision"):  # plain JSON, checked below
+        if _nested_pickle(data.get(key)):
+            raise _refuse_pickle(path, key)
     pkw = _policy_kwargs(path, data.get("policy_kwargs", {}))
     out: dict[str, Any] = {"policy_class": _policy_class(path, algo, pkw, cls)}
     if "policy_kwargs" in data:
         out["policy_kwargs"] = pkw
-    n, where = _obs_size(path, data, obs_size)
+    lay = recorded_layout(path, data, layout)
+    _check_decision(path, algo, data.get("pneugym_decision"))
+    env_size = int(env.observation_space.shape[0]) if env is not None else obs_size
+    n, where = _obs_size(path, data, lay, env_size)
+    if weights_bytes is not None:
+        need = 4 * _min_parameters(path, algo, pkw, n)
+        if need > weights_bytes:
+            raise _WeightsTooSmall(
+                f"{path}: its policy_kwargs (net_arch {pkw.get('net_arch')}) and observation "
+                f"size {n} describe a network of at least {need:,} bytes of weights, but "
+                f"policy.pth holds {weights_bytes:,}: the file was altered or is damaged; "
+                f"pneugym does not build it")
     if env is not None:
         shape = tuple(env.observation_space.shape)
         if shape != (n,):
@@ -281,22 +457,33 @@ def replacements(path: str | Path, algo: str, data: Mapping[str, Any], cls=None,
 
 def load_sb3(path: str | Path, algo: str | None = None, *, cls=None, env=None,
              obs_size: int | None = None, schedules: Mapping[str, Any] | None = None,
-             **kwargs: Any):
+             layout: Mapping[str, Any] | None = None, **kwargs: Any):
     """The SB3 model at ``path`` (``algo``: ``ppo``, ``dqn``, ``a2c``; None: told by its
     hyperparameters), loaded on the CPU with no pickled entry unpickled.
 
     ``cls`` overrides the SB3 class (a subclass of ``algo``'s, e.g. train.py's DQN); ``env``
     attaches an environment (resuming); ``obs_size`` is the fallback observation size;
-    ``schedules`` replace :data:`SCHEDULES` (see :func:`replacements`); ``kwargs`` go to
-    ``cls.load``."""
+    ``schedules`` replace :data:`SCHEDULES`, ``layout`` is the layout recorded beside the
+    model (see :func:`replacements`); ``kwargs`` go to ``cls.load``."""
     path = Path(path)
     raw, data = read_model_data(path)
     algo = algo or guess_algo(data)
     if algo not in ALGOS:
         raise ValueError(f"{path}: cannot tell whether it is a PPO, DQN or A2C model; name the "
                          f"algorithm (got {algo!r})")
+    with zipfile.ZipFile(io.BytesIO(raw)) as z:
+        names = z.namelist()
+        weights = z.getinfo("policy.pth").file_size if "policy.pth" in names else None
+    if weights is None:
+        raise ValueError(f"{path} has no policy.pth (the network's weights): not a complete "
+                         f"stable-baselines3 model")
     cls = cls or algo_class(algo)
-    custom = replacements(path, algo, data, cls, env, obs_size, schedules)
+    try:
+        custom = replacements(path, algo, data, cls, env, obs_size, schedules, layout, weights)
+    except _WeightsTooSmall:
+        if _weights_hold_objects(raw):
+            raise _objects_in_weights(path) from None
+        raise
     left = sorted(k for k, v in data.items() if is_serialized(v) and k not in custom)
     if left:  # never reached (replacements refuses first); kept as the last line of defence
         raise _refuse_pickle(path, left[0])
@@ -319,9 +506,7 @@ def load_sb3(path: str | Path, algo: str | None = None, *, cls=None, env=None,
         raise ValueError(f"{path}: stable-baselines3 could not load it as "
                          f"{algo.upper()}: {exc}") from exc
     except pickle.UnpicklingError:  # torch.load(weights_only=True) met an object
-        raise UnsafeModelError(f"{path}: a weights file (.pth) in it holds Python objects beside "
-                               f"tensors; pneugym loads tensors only and does not unpickle "
-                               f"them") from None
+        raise _objects_in_weights(path) from None
     except (KeyError, TypeError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: stable-baselines3 could not load it as "
                          f"{algo.upper()}: {type(exc).__name__}: {exc}") from exc
@@ -339,13 +524,14 @@ def save_replay_buffer(buffer, path: str | Path) -> Path:
         if not isinstance(a, np.ndarray) or a.dtype == object:
             raise TypeError(f"replay buffer {k} is {type(a).__name__}; only numeric arrays are "
                             f"saved")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # a temporary beside it, created as any file is (the umask's mode, as the checkpoints)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with os.fdopen(fd, "wb") as fh:
+        with open(tmp, "wb") as fh:
             np.savez(fh, pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
     return path
 

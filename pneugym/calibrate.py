@@ -39,7 +39,7 @@ from scipy.optimize import least_squares
 
 from .actuation import StrokeResult, cutoff_for_time_increase, simulate_stroke
 from .params import RigParams, thesis_rig
-from .outputs import atomic_write_json, check_output_dir
+from .outputs import atomic_write_json, check_output_file
 from .provenance import provenance
 from .validate import THESIS, TOLERANCES
 
@@ -178,7 +178,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--start", help="start from the parameters of an earlier calibration JSON")
     a = ap.parse_args(argv)
     try:  # before the fit: an unusable path must not cost it
-        check_output_dir(pathlib.Path(a.out).parent, "--out's folder")
+        check_output_file(a.out, "--out")
     except ValueError as exc:
         ap.error(str(exc))
     x0 = None

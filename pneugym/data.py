@@ -49,6 +49,9 @@ MAX_SAMPLE_STEP_S = 0.05
 POSITION_TOLERANCE = 0.05
 #: CSV rows converted at a time (streamed reading keeps memory to the arrays it returns).
 CSV_CHUNK_ROWS = 16384
+#: ``t`` is the time since the extend command: a first sample further than this [s] from
+#: ``t = 0`` is refused (epoch time, or a clock started long before the run).
+FIRST_SAMPLE_MAX_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,7 @@ class MeasuredRun:
 
     def rig(self, base: RigParams | None = None) -> RigParams:
         """The nominal rig of this run: its JSON over ``base`` (default: the project's rig)."""
+        _check_moving_mass(self._where(), self.meta, base)
         try:
             return RigParams.from_measurement(self.meta, base)
         except ValueError as exc:
@@ -263,6 +267,7 @@ def read_run(path: str | Path, base: RigParams | None = None) -> MeasuredRun:
         raise MeasurementFormatError(
             f"{json_path}: file not found; the run {csv_path} is refused without its JSON")
     meta = _read_json(json_path)
+    _check_moving_mass(json_path, meta, base)
     rig = _rig_from_meta(json_path, meta, base)
     cols, extra = _read_csv(csv_path, json_path, rig.cylinder.stroke_m, meta.get("sample_rate_hz"),
                             rig.gas.ambient_pressure_pa)
@@ -295,7 +300,7 @@ def read_runs(paths: str | Path | Iterable[str | Path], base: RigParams | None =
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        meta = json.loads(path.read_text(encoding="utf-8-sig"),
+        meta = json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicates,
                           parse_constant=lambda c: _raise(path, f"non-JSON constant {c}"))
     except json.JSONDecodeError as exc:
         raise MeasurementFormatError(f"{path}: not valid JSON: {exc}") from None
@@ -305,6 +310,7 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise MeasurementFormatError(f"{path}: not valid JSON: nested too deeply") from None
     except OSError as exc:
         raise MeasurementFormatError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    _refuse_duplicates(path, meta)
     if not isinstance(meta, dict):
         raise MeasurementFormatError(f"{path}: the top level must be a JSON object")
     fmt = meta.get("format")
@@ -328,6 +334,74 @@ def _read_json(path: Path) -> dict[str, Any]:
     if rig is not None:
         _check_section(path, "rig.friction", rig.get("friction"), _FRICTION_KEYS)
     return meta
+
+
+class _Duplicated(dict):
+    """A JSON object in which a key appears more than once (``dups``: key -> every value)."""
+
+    dups: dict[str, list[Any]]
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook``: a plain dict, or a :class:`_Duplicated` one that records every
+    value of a repeated key (``json`` itself keeps the last one silently)."""
+    out = dict(pairs)
+    if len(out) == len(pairs):
+        return out
+    dup = _Duplicated(out)
+    dup.dups = {}
+    for k, v in pairs:
+        dup.dups.setdefault(k, []).append(v)
+    dup.dups = {k: vs for k, vs in dup.dups.items() if len(vs) > 1}
+    return dup
+
+
+def _refuse_duplicates(path: Path, meta: Any) -> None:
+    """Refuse the first object (in document order) with a repeated key, naming its path."""
+    stack: list[tuple[str, Any]] = [("", meta)]
+    while stack:
+        where, o = stack.pop()
+        if isinstance(o, _Duplicated):
+            key, values = next(iter(o.dups.items()))
+            name = f"{where}.{key}" if where else key
+            shown = ", ".join(f"{v!r:.40}" for v in values)
+            raise MeasurementFormatError(
+                f"{path}: key {name!r} appears {len(values)} times (values {shown}); a JSON reader "
+                f"keeps only the last one silently, so which one is meant is unclear: remove "
+                f"the duplicate (a copied line?)")
+        if isinstance(o, dict):
+            stack += [(f"{where}.{k}" if where else str(k), v) for k, v in reversed(list(o.items()))]
+        elif isinstance(o, list):
+            stack += [(f"{where}[{i}]", v) for i, v in reversed(list(enumerate(o)))]
+
+
+def _check_moving_mass(where: Path | str, meta: Mapping[str, Any], base: RigParams | None) -> None:
+    """The moving mass ``load_mass_kg + rig.moving_mass_extra_kg`` must be > 0 (the plant
+    divides by it); a key the JSON does not give takes ``base`` (default: the project's rig)."""
+    base = base or RigParams()
+    rig = meta.get("rig") if isinstance(meta.get("rig"), Mapping) else {}
+    given = []
+    try:
+        if "load_mass_kg" in meta:
+            load = float(meta["load_mass_kg"])
+            given.append(f"'load_mass_kg' = {meta['load_mass_kg']!r}")
+        else:
+            load = float(base.load_mass_kg)
+            given.append(f"'load_mass_kg' absent (the default rig's {load:g} kg)")
+        if "moving_mass_extra_kg" in rig:
+            extra = float(rig["moving_mass_extra_kg"])
+            given.append(f"'rig.moving_mass_extra_kg' = {rig['moving_mass_extra_kg']!r}")
+        else:
+            extra = float(base.cylinder.moving_mass_extra_kg)
+            given.append(f"'rig.moving_mass_extra_kg' absent (the default rig's {extra:g} kg)")
+    except (TypeError, ValueError, OverflowError):
+        return  # not numbers: refused by the plausibility checks or by RigParams
+    if not load + extra > 0.0:
+        raise MeasurementFormatError(
+            f"{where}: key {given[0]} and key {given[1]}: the moving mass load_mass_kg + "
+            f"rig.moving_mass_extra_kg = {load + extra:g} kg must be > 0 (the piston, rods and "
+            f"trolley always move with the payload); give 'rig.moving_mass_extra_kg' (the "
+            f"default rig's is {RigParams().cylinder.moving_mass_extra_kg:g} kg)")
 
 
 def _near_miss(key: str, known: Sequence[str]) -> str | None:
@@ -508,6 +582,16 @@ def _check_columns(path: Path, json_path: Path, cols: dict[str, np.ndarray], str
         _check_time(path, json_path, cols["t"], rate_hz)
     v = cols["valve"]
     _first_bad(path, "valve", v, (v != 0.0) & (v != 1.0), "is not a valve command (0 or 1)")
+    t = cols["t"]
+    step = float((t[-1] - t[0]) / (t.size - 1))
+    early = np.flatnonzero((v == 1.0) & (t < -SAMPLING_TOLERANCE * step))
+    if early.size:
+        k = int(early[0])
+        raise MeasurementFormatError(
+            f"{path}: line {k + 2}, column 'valve': 1 (supply connected) at t = {t[k]:.6g} s, "
+            f"before the extend command; t is the time since the extend command, so the valve "
+            f"cannot be open at t < 0 ({early.size} such rows): t offset by a pre-trigger or "
+            f"clock? (shift t so that the extend command, the first valve = 1, is at t = 0)")
     lo, hi = PRESSURE_RANGE_PA
     p_min = GAUGE_FRACTION * ambient_pa
     for name in PRESSURE_COLUMNS:
@@ -534,6 +618,16 @@ def _check_time(path: Path, json_path: Path, t: np.ndarray, rate_hz: float | Non
     dt = np.diff(t)
     _first_bad(path, "t", t[1:], ~(dt > 0.0), "is not after the previous time (t must increase strictly)",
                first_sample=1)
+    since = ("t must be the time since the extend command (t = 0); epoch time or a clock "
+             "offset? (subtract the time of the extend command from t)")
+    if not abs(t[0]) <= FIRST_SAMPLE_MAX_S:
+        raise MeasurementFormatError(
+            f"{path}: line 2, column 't': the first sample is at t = {t[0]:.10g} s, more than "
+            f"{FIRST_SAMPLE_MAX_S:g} s from the extend command; {since}")
+    if not t[-1] > 0.0:
+        raise MeasurementFormatError(
+            f"{path}: line {t.size + 1}, column 't': the last sample is at t = {t[-1]:.6g} s, "
+            f"so the whole run lies before the extend command (t = 0); {since}")
     step = float(np.median(dt))
     _first_bad(path, "t", t[1:], np.abs(dt - step) > SAMPLING_TOLERANCE * step,
                f"breaks the uniform sampling (step {step:.6g} s, tolerance "

@@ -25,6 +25,8 @@ def check_output_dir(path: str | Path, what: str = "output folder") -> Path:
 
     Raises :class:`OutputError` naming the path when it is a file, or cannot be created or
     written."""
+    if str(path).strip() == "":
+        raise OutputError(f"{what} is empty: give a folder path (use '.' for this folder)")
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputError(f"{what} {p} exists and is not a folder: give a folder path")
@@ -38,6 +40,25 @@ def check_output_dir(path: str | Path, what: str = "output folder") -> Path:
     return p
 
 
+def check_output_file(path: str | Path, what: str = "output file") -> Path:
+    """Prove that ``path`` can be written as a file, before any long work starts: its folder is
+    created and writable, and ``path`` itself is not a folder. Raises :class:`OutputError`."""
+    if str(path).strip() == "":
+        raise OutputError(f"{what} is empty: give a file path")
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{what} {p} is a folder: give a file path (e.g. {p / 'out.json'})")
+    check_output_dir(p.parent, f"the folder of {what} {p}")
+    return p
+
+
+def _umask_mode() -> int:
+    """The mode a new file gets from the process's umask (mkstemp alone gives 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to a temporary file beside ``path`` and rename it over ``path``: a reader
     sees the old file or the new one, never half of one."""
@@ -47,6 +68,7 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -62,11 +84,20 @@ def atomic_write_json(path: str | Path, obj: Any, default: Callable[[Any], Any] 
                                               default=default) + "\n")
 
 
+def _blocked(target: Path, dest: Path) -> bool:
+    """True when ``target`` is a folder, or a file stands where one of its folders must go."""
+    if target.is_dir():
+        return True
+    return any((dest / q).exists() and not (dest / q).is_dir()
+               for q in target.relative_to(dest).parents if q != Path("."))
+
+
 @contextlib.contextmanager
 def staged_files(out: str | Path) -> Iterator[Path]:
     """Write a set of files as a whole: the block writes into a staging folder inside ``out``;
-    when it finishes, every staged file is renamed into ``out`` (each rename atomic); when it
-    raises, nothing in ``out`` changes and the staging folder is removed.
+    when it finishes, every staged file is renamed into ``out`` (each rename atomic) after
+    checking that no target is a folder; when the block or a check fails, nothing in ``out``
+    changes and the staging folder is removed.
 
     >>> with staged_files("report") as stage:      # doctest: +SKIP
     ...     (stage / "report.json").write_text("{}")
@@ -75,10 +106,15 @@ def staged_files(out: str | Path) -> Iterator[Path]:
     stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=dest))
     try:
         yield stage
-        for f in sorted(stage.rglob("*")):
-            if f.is_file():
-                target = dest / f.relative_to(stage)
-                target.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(f, target)
+        files = [f for f in sorted(stage.rglob("*")) if f.is_file()]
+        for f in files:  # all checks first: a failing rename must not leave half a set
+            target = dest / f.relative_to(stage)
+            if _blocked(target, dest):
+                raise OutputError(f"cannot write {target}: a folder or file is in the way; "
+                                  f"nothing in {dest} was changed")
+        for f in files:
+            target = dest / f.relative_to(stage)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(f, target)
     finally:
         shutil.rmtree(stage, ignore_errors=True)

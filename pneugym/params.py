@@ -20,6 +20,13 @@ from typing import Any, Mapping
 THESIS_VALVE_DELAY = ((150_000.0, 0.215), (250_000.0, 0.185))
 
 
+_GROUP_NAMES = ("gas", "cylinder", "line", "valve", "friction", "effects", "solver")
+try:  # numpy's bool is not a Python bool but is no number either
+    from numpy import bool_ as np_bool
+except ImportError:  # pragma: no cover
+    np_bool = bool
+
+
 def did_you_mean(name: Any, known: Any) -> str:
     """`` (did you mean 'x'?)`` for the known name nearest to ``name``, or ``""``."""
     m = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
@@ -34,21 +41,28 @@ def _check(obj: Any, name: str, ok: bool, what: str) -> None:
 
 
 def _finite(obj: Any) -> None:
-    """Every number field must be a finite number (no NaN, no inf, no ``None`` unless the field
-    allows it, no strings)."""
+    """Every number field must be a finite real number (no NaN, inf, ``None`` unless the field
+    allows it, strings, lists); float fields are stored as Python floats (numpy scalars,
+    fractions and ints included), so that equal rigs compare and hash equal."""
     for f in fields(obj):
         v = getattr(obj, f.name)
+        kind = str(f.type)
         if v is None:
-            if "None" in str(f.type):
+            if "None" in kind:
                 continue
-            want = "a string" if "str" in str(f.type) else "a finite number"
+            want = "a string" if "str" in kind else "a finite number"
             raise ValueError(f"{type(obj).__name__}.{f.name} = None is invalid: must be {want}")
-        if dataclasses.is_dataclass(v) or isinstance(v, (tuple, list, Mapping)):
+        if f.name in _GROUP_NAMES or "tuple" in kind:
+            continue  # groups and tee volumes check themselves
+        if "str" in kind:
+            if not isinstance(v, str):
+                raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a "
+                                 f"string")
             continue
-        if isinstance(v, str) and "str" in str(f.type):
-            continue
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
+        if isinstance(v, (bool, np_bool)) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
             raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a finite number")
+        if "float" in kind:
+            object.__setattr__(obj, f.name, float(v))
 
 
 def _plausible(obj: Any, name: str, hi: float, hint: str) -> None:
@@ -88,6 +102,10 @@ class GasParams:
                "in [1e4, 2e5] Pa absolute (bar given as Pa? 1 bar = 1e5 Pa)")
         _check(self, "ambient_temperature_k", 150.0 <= self.ambient_temperature_k <= 600.0,
                "in [150, 600] K (°C given as K? 20 °C = 293.15 K)")
+        _check(self, "gas_constant_j_per_kg_k", 50.0 <= self.gas_constant_j_per_kg_k <= 5000.0,
+               "in [50, 5000] J/(kg K) (air: 287; kJ given as J?)")
+        _check(self, "viscosity_pa_s", self.viscosity_pa_s <= 1e-3,
+               "<= 1e-3 Pa s (air: 1.81e-5; µPa s given as Pa s?)")
 
     @property
     def sound_speed_isothermal_m_s(self) -> float:
@@ -166,8 +184,9 @@ class LineParams:
         for i, (pos, vol) in enumerate(self.tee_volumes):
             if not (math.isfinite(pos) and 0.0 <= pos <= self.length_m):
                 raise ValueError(f"LineParams.tee_volumes[{i}] position {pos!r} must be in [0, length_m]")
-            if not (math.isfinite(vol) and vol >= 0.0):
-                raise ValueError(f"LineParams.tee_volumes[{i}] volume {vol!r} must be >= 0")
+            if not (math.isfinite(vol) and 0.0 <= vol <= 0.01):
+                raise ValueError(f"LineParams.tee_volumes[{i}] volume {vol!r} must be in [0, 0.01] "
+                                 f"m³ (cm³ given as m³? 1 cm³ = 1e-6 m³)")
 
     @property
     def area_m2(self) -> float:
@@ -203,6 +222,7 @@ class ValveParams:
             _check(self, "delay_s", 0.0 <= self.delay_s <= 5.0, "None or in [0, 5] s (ms given as s?)")
         _plausible(self, "area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "exhaust_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
+        _plausible(self, "ramp_s", 1.0, "ms given as s? (10 ms = 0.01 s)")
         _check(self, "flow_model", self.flow_model in ("thesis", "iso6358"), "'thesis' or 'iso6358'")
         _check(self, "iso_b", 0.0 <= self.iso_b < 1.0, "in [0, 1)")
         _check(self, "linear_ratio", 1e-4 <= self.linear_ratio <= 0.2, "in [1e-4, 0.2]")
@@ -259,6 +279,12 @@ class EffectParams:
         _nonneg(self, "leak_drive_area_m2", "leak_piston_area_m2", "heat_transfer_time_constant_s",
                 "stribeck_force_n", "sensor_lag_s", "dead_volume_m3")
         _positive(self, "stribeck_velocity_m_s")
+        for name in ("leak_drive_area_m2", "leak_piston_area_m2"):
+            _plausible(self, name, 1e-4, "mm² given as m²? (1 mm² = 1e-6 m²)")
+        _plausible(self, "sensor_lag_s", 1.0, "ms given as s? (15 ms = 0.015 s)")
+        _plausible(self, "heat_transfer_time_constant_s", 1e4, "a time constant in s")
+        _plausible(self, "dead_volume_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
+        _plausible(self, "stribeck_velocity_m_s", 10.0, "mm/s given as m/s?")
 
     @property
     def active(self) -> tuple[str, ...]:
@@ -289,16 +315,37 @@ class SolverParams:
 
     def __post_init__(self) -> None:
         _finite(self)
+        _check(self, "min_dt_s", self.min_dt_s >= 1e-9,
+               ">= 1e-9 s (a smaller substep takes hours per simulated second)")
         if self.dt_s is not None:
-            _check(self, "dt_s", self.dt_s > 0, "None or > 0")
+            _check(self, "dt_s", self.dt_s >= self.min_dt_s,
+                   f"None or >= min_dt_s = {self.min_dt_s:g} s (a smaller substep takes hours per "
+                   f"simulated second; µs given as s?)")
         _check(self, "safety", 0.0 < self.safety <= 1.0, "in (0, 1]")
-        _positive(self, "min_dt_s")
 
 
 #: Lowest plausible supply [Pa gauge] (0.1 bar): below it the value is almost surely bar given as Pa.
 MIN_SUPPLY_GAUGE_PA = 1e4
 _GROUPS = {"gas": GasParams, "cylinder": CylinderParams, "line": LineParams, "valve": ValveParams,
            "friction": FrictionParams, "effects": EffectParams, "solver": SolverParams}
+
+
+#: ``rig`` keys of the measured-run format -> (group, field) of :class:`RigParams`.
+MEASUREMENT_RIG_KEYS: dict[str, tuple[str, str]] = {
+    "bore_m": ("cylinder", "bore_m"), "rod_m": ("cylinder", "rod_m"),
+    "stroke_m": ("cylinder", "stroke_m"), "dead_volume_m3": ("cylinder", "dead_volume_m3"),
+    "port_area_m2": ("cylinder", "port_area_m2"),
+    "cushion_length_m": ("cylinder", "cushion_length_m"),
+    "cushion_factor_drive": ("cylinder", "cushion_factor_drive"),
+    "cushion_factor_exhaust": ("cylinder", "cushion_factor_exhaust"),
+    "moving_mass_extra_kg": ("cylinder", "moving_mass_extra_kg"),
+    "line_length_m": ("line", "length_m"), "line_diameter_m": ("line", "diameter_m"),
+    "valve_area_m2": ("valve", "area_m2"), "exhaust_area_m2": ("valve", "exhaust_area_m2"),
+    "discharge_coefficient": ("valve", "discharge_coefficient"),
+    "valve_delay_s": ("valve", "delay_s"),
+}
+MEASUREMENT_FRICTION_KEYS: dict[str, tuple[str, str]] = {
+    k: ("friction", k) for k in ("static_n", "coulomb_n", "viscous_n_s_per_m")}
 
 
 def _groups(rig: Any) -> None:
@@ -334,6 +381,10 @@ class RigParams:
                f"{self.supply_pressure_gauge_pa:g} bar = {self.supply_pressure_gauge_pa * 1e5:g} Pa)")
         _nonneg(self, "load_mass_kg")
         _plausible(self, "load_mass_kg", 1e4, "grams given as kg?")
+        if self.moving_mass_kg <= 0.0:
+            raise ValueError(f"RigParams: the moving mass load_mass_kg + "
+                             f"CylinderParams.moving_mass_extra_kg = {self.moving_mass_kg:g} kg "
+                             f"must be > 0 (the piston and rods weigh something)")
 
     # -- derived ---------------------------------------------------------------------------
     @property
@@ -391,42 +442,31 @@ class RigParams:
 
     @classmethod
     def from_measurement(cls, meta: Mapping[str, Any], base: "RigParams | None" = None) -> "RigParams":
-        """Rig from a measured run's JSON (``pneugym-measurement/1``); missing keys keep ``base``."""
+        """Rig from a measured run's JSON (``pneugym-measurement/1``); missing keys keep ``base``.
+        Unknown keys of the ``rig`` section are refused with the nearest known one; values are
+        taken as given (a string or ``None`` is refused by the field it maps to)."""
+        if not isinstance(meta, Mapping):
+            raise ValueError(f"a measured run's JSON must be an object, got {meta!r:.80}")
         base = base or cls()
-        rig = dict(meta.get("rig") or {})
-        fr = dict(rig.pop("friction", {}) or {})
-        m = {
-            "bore_m": ("cylinder", "bore_m"), "rod_m": ("cylinder", "rod_m"),
-            "stroke_m": ("cylinder", "stroke_m"), "dead_volume_m3": ("cylinder", "dead_volume_m3"),
-            "port_area_m2": ("cylinder", "port_area_m2"),
-            "cushion_length_m": ("cylinder", "cushion_length_m"),
-            "cushion_factor_drive": ("cylinder", "cushion_factor_drive"),
-            "cushion_factor_exhaust": ("cylinder", "cushion_factor_exhaust"),
-            "moving_mass_extra_kg": ("cylinder", "moving_mass_extra_kg"),
-            "line_length_m": ("line", "length_m"), "line_diameter_m": ("line", "diameter_m"),
-            "valve_area_m2": ("valve", "area_m2"), "exhaust_area_m2": ("valve", "exhaust_area_m2"),
-            "discharge_coefficient": ("valve", "discharge_coefficient"),
-            "valve_delay_s": ("valve", "delay_s"),
-        }
+        rig = meta.get("rig") or {}
+        if not isinstance(rig, Mapping):
+            raise ValueError(f"key 'rig' must be an object, got {rig!r:.80}")
+        fr = rig.get("friction") or {}
+        if not isinstance(fr, Mapping):
+            raise ValueError(f"key 'rig.friction' must be an object, got {fr!r:.80}")
         groups: dict[str, dict[str, Any]] = {}
-        for key, value in rig.items():
-            if key in m:
-                g, name = m[key]
+        for section, keys, items in (("rig", MEASUREMENT_RIG_KEYS, rig.items()),
+                                     ("rig.friction", MEASUREMENT_FRICTION_KEYS, fr.items())):
+            for key, value in items:
+                if section == "rig" and key == "friction":
+                    continue
+                if key not in keys:
+                    raise ValueError(f"key {section}.{key!s} is unknown{did_you_mean(key, keys)}; "
+                                     f"known: {sorted(keys)}")
+                g, name = keys[key]
                 groups.setdefault(g, {})[name] = value
-        fmap = {"static_n": "static_n", "coulomb_n": "coulomb_n", "viscous_n_s_per_m": "viscous_n_s_per_m"}
-        for key, value in fr.items():
-            if key in fmap:
-                groups.setdefault("friction", {})[fmap[key]] = value
-        top: dict[str, Any] = {}
-        if "supply_pressure_gauge_pa" in meta:
-            top["supply_pressure_gauge_pa"] = float(meta["supply_pressure_gauge_pa"])
-        if "load_mass_kg" in meta:
-            top["load_mass_kg"] = float(meta["load_mass_kg"])
-        gas = {}
-        if "ambient_pressure_pa" in meta:
-            gas["ambient_pressure_pa"] = float(meta["ambient_pressure_pa"])
-        if "ambient_temperature_k" in meta:
-            gas["ambient_temperature_k"] = float(meta["ambient_temperature_k"])
+        top = {k: meta[k] for k in ("supply_pressure_gauge_pa", "load_mass_kg") if k in meta}
+        gas = {k: meta[k] for k in ("ambient_pressure_pa", "ambient_temperature_k") if k in meta}
         if gas:
             groups["gas"] = gas
         return base.with_(**top, **groups)

@@ -50,6 +50,11 @@ class RigWarning(UserWarning):
     """A rig that can be simulated but is almost surely not what was meant."""
 
 
+def _real(v: object) -> bool:
+    """A finite real number (not a bool, string or array)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
+
+
 def check_command(value: object, what: str = "command") -> float:
     """A valve command as the kernels take it: exactly 0 (cut off) or 1 (supply connected)."""
     ok = isinstance(value, (numbers.Real, np.bool_)) and not (
@@ -62,8 +67,7 @@ def check_command(value: object, what: str = "command") -> float:
 
 def check_duration(value: object, what: str = "duration_s", allow_zero: bool = False) -> float:
     """A simulated span [s]: finite, > 0 (or >= 0) and at most :data:`MAX_SPAN_S`."""
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or not (value >= 0 if allow_zero else value > 0):  # type: ignore[operator]
+    if not _real(value) or not (value >= 0 if allow_zero else value > 0):  # type: ignore[operator]
         raise ValueError(f"{what} = {value!r} is invalid: must be a finite number "
                          f"{'>= 0' if allow_zero else '> 0'} [s]")
     if value > MAX_SPAN_S:  # type: ignore[operator]
@@ -74,6 +78,9 @@ def check_duration(value: object, what: str = "duration_s", allow_zero: bool = F
 
 def check_schedule(schedule: Iterable[tuple[float, int]]) -> list[tuple[float, float]]:
     """Valve commands ``(time_s, value)``: times finite and >= 0, values 0 or 1; sorted."""
+    if isinstance(schedule, (str, bytes)) or not isinstance(schedule, Iterable):
+        raise ValueError(f"schedule = {schedule!r} is invalid: must be a list of (time_s, "
+                         f"command) pairs, e.g. [(0.0, 1), (0.8, 0)]")
     out = []
     for k, item in enumerate(schedule):
         try:
@@ -155,10 +162,13 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
 
 def set_supply_dip(P: np.ndarray, start_s: float, duration_s: float, depth: float) -> None:
     """Write a supply-pressure dip into a packed parameter array (see :meth:`Plant.set_supply_dip`)."""
+    for name, val in (("start_s", start_s), ("duration_s", duration_s), ("depth", depth)):
+        if not _real(val):
+            raise ValueError(f"supply dip {name} = {val!r} is invalid: must be a finite number")
     for name, val, ok in (("start_s", start_s, start_s >= 0.0),
                           ("duration_s", duration_s, duration_s >= 0.0),
                           ("depth", depth, 0.0 <= depth < 1.0)):
-        if not (math.isfinite(val) and ok):
+        if not ok:
             raise ValueError(f"supply dip {name} = {val} is invalid (start and duration >= 0 s, "
                              f"0 <= depth < 1 of the gauge supply pressure)")
     P[L.P_DIP_T0], P[L.P_DIP_DUR], P[L.P_DIP_DEPTH] = start_s, duration_s, depth
@@ -280,6 +290,18 @@ def choose_dt(params: RigParams) -> tuple[float, str]:
     return stable, name
 
 
+def _line_pressures(p: object, n: int) -> np.ndarray:
+    """Initial line-cell pressures [Pa absolute]: one number or one per cell, all positive."""
+    try:
+        arr = np.broadcast_to(np.asarray(p, dtype=float), (n,))
+    except (TypeError, ValueError):
+        raise ValueError(f"p_line_pa = {p!r} is invalid: must be a pressure [Pa] or one per line "
+                         f"cell ({n})") from None
+    if isinstance(p, (str, bytes, bool)) or not (np.isfinite(arr).all() and (arr > 0).all()):
+        raise ValueError(f"p_line_pa = {p!r} is invalid: must be positive absolute pressures [Pa]")
+    return arr
+
+
 # ------------------------------------------------------------------------------------------
 # plant
 # ------------------------------------------------------------------------------------------
@@ -336,19 +358,20 @@ class Plant:
         pa, ps = prm.gas.ambient_pressure_pa, prm.supply_pressure_pa
         n, b = self.n_cells, self._b
         vol = self.P[L.NP:]
-        pl = np.broadcast_to(np.asarray(pa if p_line_pa is None else p_line_pa, float), (n,))
+        pl = _line_pressures(pa if p_line_pa is None else p_line_pa, n)
         y = np.zeros(b + L.NY)
         y[:n] = pl * vol / (R * T)
         pd = pa if p_drive_pa is None else p_drive_pa
         pe = ps if p_exhaust_pa is None else p_exhaust_pa
-        if not 0.0 <= position_m <= prm.cylinder.stroke_m:
-            raise ValueError(f"position_m = {position_m} is outside [0, stroke]")
+        if not (_real(position_m) and 0.0 <= position_m <= prm.cylinder.stroke_m):
+            raise ValueError(f"position_m = {position_m!r} is invalid: must be a number in "
+                             f"[0, stroke = {prm.cylinder.stroke_m:g}] m")
         A = prm.cylinder.piston_area_m2
         vd = self.P[L.P_V0D] + A * position_m
         ve = self.P[L.P_V0E] + A * (prm.cylinder.stroke_m - position_m)
         for name, val in (("p_drive_pa", pd), ("p_exhaust_pa", pe)):
-            if not (math.isfinite(val) and val > 0):
-                raise ValueError(f"{name} = {val} must be a positive pressure [Pa]")
+            if not (_real(val) and val > 0):
+                raise ValueError(f"{name} = {val!r} must be a positive absolute pressure [Pa]")
         y[b + L.Y_MD] = pd * vd / (R * T)
         y[b + L.Y_ME] = pe * ve / (R * T)
         y[b + L.Y_TD] = y[b + L.Y_TE] = T
@@ -409,7 +432,7 @@ class Plant:
         ``cut_on_arrival`` commands a cut-off the moment the piston reaches the end of stroke
         (the thesis's end-stroke cut-off). Continues from the current state."""
         sched = check_schedule(schedule)
-        if not (isinstance(t_end, numbers.Real) and math.isfinite(t_end) and t_end > self.time_s):
+        if not (_real(t_end) and t_end > self.time_s):
             raise ValueError(f"t_end = {t_end!r} is invalid: must be a finite time [s] after the "
                              f"current time {self.time_s:g} s")
         check_duration(t_end - self.time_s, "t_end - current time")
@@ -642,6 +665,9 @@ class PlantBatch:
     :func:`pneugym.physics.system.advance_batch` (parallel over plants with numba ``prange``)."""
 
     def __init__(self, params: Sequence[RigParams]):
+        if isinstance(params, RigParams) or not isinstance(params, Sequence):
+            raise ValueError(f"PlantBatch needs a list of RigParams (one per plant), got "
+                             f"{type(params).__name__}")
         if not params:
             raise ValueError("PlantBatch needs at least one RigParams")
         plants = [Plant(p) for p in params]

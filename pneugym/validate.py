@@ -21,7 +21,7 @@ from .plant import Plant, pack
 from .physics import layout as L
 from .physics.orifice import OC_CM_STAR
 from .physics.testbed import line_run
-from .outputs import atomic_write_json, check_output_dir
+from .outputs import atomic_write_json, check_output_dir, check_output_file
 from .provenance import provenance
 
 BAR = 1e5
@@ -371,7 +371,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plots", default="validation", help="folder for the PNG plots")
     a = ap.parse_args(argv)
     try:  # before the (minute-long) report: an unusable path must not cost the run
-        check_output_dir(Path(a.json).parent, "--json's folder")
+        check_output_file(a.json, "--json")
         check_output_dir(a.plots, "--plots")
     except ValueError as exc:
         ap.error(str(exc))

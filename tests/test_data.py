@@ -390,3 +390,69 @@ def test_streamed_reading_across_chunks(run_files, clean_run, monkeypatch):
     _rewrite_csv(run_files, lambda ls: [l for l in ls if l.strip()])
     _rewrite_csv(run_files, lambda ls: _set_cell(ls, 500, "p_exhaust", "1,0"))  # 1 field too many
     _refused(run_files, r"line 501: 7 fields, the header has 6|line 501: \d+ fields")
+
+
+# -- t is the time since the extend command; the moving mass; duplicate JSON keys -----------------
+@pytest.mark.parametrize("offset, pattern", [
+    (1.7e9, r"line 2, column 't': the first sample is at t = 1700000000 s, more than 60 s"),
+    (100.0, r"line 2, column 't': the first sample is at t = 100 s"),
+    (-61.0, r"line 2, column 't': the first sample is at t = -61 s"),
+    (-5.0, r"line 602, column 't': the last sample is at t = -4\.4 s, so the whole run lies before"),
+])
+def test_time_not_since_the_extend_command_is_refused(run_files, offset, pattern):
+    _rewrite_csv(run_files, _scale_column("t", 1.0, offset))
+    _rewrite_json(run_files, lambda m: m.pop("sample_rate_hz"))  # epoch floats lose the rate
+    _refused(run_files, re.escape(str(run_files.with_suffix(".csv"))), pattern,
+             re.escape("t must be the time since the extend command (t = 0); epoch time or a "
+                       "clock offset?"))
+
+
+def test_valve_open_before_the_extend_command_is_refused(run_files):
+    _rewrite_csv(run_files, _scale_column("t", 1.0, -0.5))  # the clock started 0.5 s late
+    _refused(run_files, re.escape(str(run_files.with_suffix(".csv"))),
+             r"line 2, column 'valve': 1 \(supply connected\) at t = -0\.5 s, before the extend "
+             r"command", r"\(500 such rows\)", r"t offset by a pre-trigger or clock\?")
+
+
+def test_pre_trigger_samples_with_the_valve_closed_are_read(run_files, clean_run):
+    def pre(ls):
+        first = ls[1].split(",")
+        rows = []
+        for k in range(5, 0, -1):  # 5 samples before the extend command, valve closed
+            f = list(first)
+            f[0], f[1] = repr(-k * 1e-3), "0"
+            rows.append(",".join(f))
+        return ls[:1] + rows + ls[1:]
+    _rewrite_csv(run_files, pre)
+    run = read_run(run_files)
+    assert len(run) == len(clean_run) + 5 and run.t[0] == pytest.approx(-5e-3)
+    assert run.schedule() == [(0.0, 0), (0.0, 1)]
+
+
+@pytest.mark.parametrize("text, key, values", [
+    ('"load_mass_kg": 10.0, "load_mass_kg": 1000', "load_mass_kg", "10.0, 1000"),
+    ('"rig": {"bore_m": 0.125, "friction": {"static_n": 359, "static_n": 400}}',
+     "rig.friction.static_n", "359, 400"),
+])
+def test_duplicate_json_keys_are_refused(run_files, text, key, values):
+    p = run_files.with_suffix(".json")
+    p.write_text('{"format": "pneugym-measurement/1", "supply_pressure_gauge_pa": 250000, '
+                 + text + "}")
+    _refused(run_files, re.escape(str(p)), re.escape(f"key '{key}' appears 2 times (values {values})"),
+             "keeps only the last one silently")
+
+
+def test_zero_moving_mass_is_refused(run_files, clean_run):
+    _rewrite_json(run_files, lambda m: (m.update(load_mass_kg=0), m["rig"].update(moving_mass_extra_kg=0)))
+    _refused(run_files, re.escape(str(run_files.with_suffix(".json"))),
+             r"key 'load_mass_kg' = 0 and key 'rig\.moving_mass_extra_kg' = 0: the moving mass "
+             r"load_mass_kg \+ rig\.moving_mass_extra_kg = 0 kg must be > 0")
+    _rewrite_json(run_files, lambda m: m["rig"].pop("moving_mass_extra_kg"))
+    assert read_run(run_files).rig().moving_mass_kg == 1.0  # the default rig's 1 kg moves
+    # a run built in Python (not read) is checked when its rig is made
+    meta = json.loads(json.dumps(clean_run.meta))
+    meta["load_mass_kg"] = 0.0
+    meta["rig"]["moving_mass_extra_kg"] = 0.0
+    with pytest.raises(MeasurementFormatError, match=r"run 'clean'.*moving mass"):
+        MeasuredRun(name="clean", t=clean_run.t, valve=clean_run.valve, x=clean_run.x,
+                    p_drive=clean_run.p_drive, p_exhaust=clean_run.p_exhaust, meta=meta).rig()

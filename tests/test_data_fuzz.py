@@ -1,5 +1,7 @@
 """Fuzz test of the measured-run reader: random and mutated CSV and JSON contents either give a
-valid :class:`MeasuredRun` or a :class:`MeasurementFormatError`, never another exception."""
+valid :class:`MeasuredRun` or a :class:`MeasurementFormatError`, never another exception. A run
+that is read obeys the format's rules: ``t`` is the time since the extend command (first sample
+near 0, the valve never open before it), the moving mass is positive, no JSON key is repeated."""
 from __future__ import annotations
 
 import json
@@ -14,6 +16,7 @@ from hypothesis import strategies as st
 
 from pneugym import thesis_rig
 from pneugym.data import (
+    FIRST_SAMPLE_MAX_S,
     REQUIRED_COLUMNS,
     MeasuredRun,
     MeasurementFormatError,
@@ -50,14 +53,17 @@ json_values = st.recursive(
 json_keys = st.sampled_from(["format", "supply_pressure_gauge_pa", "load_mass_kg", "ambient_pressure_pa",
                              "ambient_temperature_k", "sample_rate_hz", "rig", "description", "load_mass",
                              "extra", "rig.bore_m", "rig.stroke_m", "rig.friction", "rig.friction.coulomb_n",
-                             "rig.bore", "rig.valve_delay_s"])
+                             "rig.bore", "rig.valve_delay_s", "rig.moving_mass_extra_kg"])
+#: shifts of the time column: epoch time, clock offsets, a pre-trigger
+T_SHIFTS = [1.7e9, 1.7e12, 100.0, 61.0, 59.0, 0.5, 1e-3, -1e-3, -0.02, -0.5, -59.0, -61.0, -1e9]
 
 
 @st.composite
 def csv_bytes(draw) -> bytes:
     lines = CSV0.decode().splitlines()
     for _ in range(draw(st.integers(0, 4))):
-        op = draw(st.sampled_from(["cell", "drop_line", "dup_line", "add_col", "drop_col", "blank", "swap"]))
+        op = draw(st.sampled_from(["cell", "drop_line", "dup_line", "add_col", "drop_col", "blank",
+                                   "swap", "shift_t", "close_valve"]))
         i = draw(st.integers(0, len(lines) - 1)) if lines else 0
         if not lines:
             break
@@ -78,8 +84,34 @@ def csv_bytes(draw) -> bytes:
             lines.insert(i, "")
         elif op == "swap" and i + 1 < len(lines):
             lines[i], lines[i + 1] = lines[i + 1], lines[i]
+        elif op == "shift_t":  # epoch time, a clock offset, a pre-trigger
+            dt = draw(st.sampled_from(T_SHIFTS))
+            lines = lines[:1] + [_shift_t(ln, dt) for ln in lines[1:]]
+        elif op == "close_valve":  # the valve closed before t = 0 (a pre-trigger done right)
+            lines = lines[:1] + [_close_before_0(ln) for ln in lines[1:]]
     data = ("\n".join(lines) + "\n").encode("utf-8", "surrogatepass")
     return _byte_ops(draw, data)
+
+
+def _shift_t(line: str, dt: float) -> str:
+    """``line`` with ``dt`` added to its first cell (``t`` unless a column was dropped)."""
+    f = line.split(",")
+    try:
+        f[0] = repr(float(f[0]) + dt)
+    except ValueError:
+        pass
+    return ",".join(f)
+
+
+def _close_before_0(line: str) -> str:
+    """``line`` with its second cell (``valve``) 0 if its first (``t``) is negative."""
+    f = line.split(",")
+    try:
+        if len(f) > 1 and float(f[0]) < 0:
+            f[1] = "0"
+    except ValueError:
+        pass
+    return ",".join(f)
 
 
 def _byte_ops(draw, data: bytes) -> bytes:
@@ -108,6 +140,9 @@ def json_bytes(draw) -> bytes:
         else:
             d.pop(last, None)
     text = json.dumps(meta) if draw(st.integers(0, 5)) else draw(st.text(max_size=40))
+    if draw(st.integers(0, 5)) == 0 and text.startswith("{"):  # a repeated key
+        key = draw(st.sampled_from(["format", "load_mass_kg", "supply_pressure_gauge_pa", "note"]))
+        text = "{" + json.dumps(key) + ": " + json.dumps(draw(st.one_of(finite, json_values))) + ", " + text[1:]
     return _byte_ops(draw, text.encode("utf-8", "surrogatepass"))
 
 
@@ -128,8 +163,29 @@ def _check(csv_data: bytes, json_data: bytes) -> MeasuredRun | None:
         assert a.shape == (n,) and a.dtype == float and np.isfinite(a).all()
     assert np.all(np.diff(run.t) > 0)
     assert set(np.unique(run.valve)) <= {0.0, 1.0}
-    run.rig()  # the rig it describes is valid
+    # t is the time since the extend command: no epoch time or clock offset, no open valve before it
+    assert abs(run.t[0]) <= FIRST_SAMPLE_MAX_S and run.t[-1] > 0
+    assert not np.any((run.valve == 1.0) & (run.t < -1e-9))
+    rig = run.rig()  # the rig it describes is valid ...
+    assert rig.moving_mass_kg > 0  # ... and has something to move
+    pairs = json.loads(json_data.decode("utf-8-sig"), object_pairs_hook=lambda p: p)
+    assert _no_repeated_keys(pairs)
     return run
+
+
+def _no_repeated_keys(o) -> bool:
+    """Whether no object in ``o`` (parsed with ``object_pairs_hook=list``) repeats a key."""
+    stack = [o]
+    while stack:
+        o = stack.pop()
+        if isinstance(o, list) and all(isinstance(p, tuple) and len(p) == 2 for p in o):
+            keys = [k for k, _ in o]
+            if len(keys) != len(set(keys)):
+                return False
+            stack += [v for _, v in o]
+        elif isinstance(o, list):
+            stack += o
+    return True
 
 
 def test_unmutated_files_read():

@@ -18,6 +18,7 @@ from pneugym import RigParams, thesis_rig
 from pneugym.data import (
     DEFAULT_NOISE,
     MeasuredRun,
+    read_run,
     simulate_run,
     thesis_protocol,
     write_run,
@@ -43,6 +44,7 @@ from pneugym.discrepancy.prepare import (
 from pneugym.discrepancy.residuals import PHASES, estimate_noise, replay
 from pneugym.discrepancy.stats import f_test, lr_test, standard_errors
 from pneugym.discrepancy.workflow import CandidateResult
+from pneugym.plant import SimulationError
 
 FAST = {"n_starts": 2, "n_probe": 6, "max_nfev": 25, "seed": 0, "n_jobs": 1}
 
@@ -450,3 +452,126 @@ def test_table_5_1_friction():
     assert not c.checks_["significant"] and not c.checks_["resolved"]
     assert 0.01 < c.p_value_ < 0.1 and c.p_value_white_ < 0.02
     assert c.named_effect_ == "none"
+
+
+# -- noise-free runs the JSON's model reproduces: no gap, no division by zero -----------------------
+def test_noise_free_runs_without_a_gap(tmp_path, capsys):
+    runs = thesis_protocol(thesis_rig(2.5), t_end=2.0, noise=None)
+    for r in runs:
+        write_run(r, tmp_path / "runs" / r.name)
+    rc = main([str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--starts", "1", "--probe",
+               "2", "--max-nfev", "2", "--jobs", "1", "--quiet"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    rep = json.loads((tmp_path / "out" / "report.json").read_text(),
+                     parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+    assert rep["named_effect"] == "none" and rep["no_gap"] is True
+    assert rep["gap_before"] == 0.0 and rep["gap_reduction"] is None
+    assert rep["gap_reduction_vs_calibrated"] is None and rep["candidates"] == []
+    assert "no gap to reduce" in rep["decision"]
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "**no gap to reduce**" in md and "None fitted: there is no gap to reduce." in md
+    assert (tmp_path / "out" / "candidates.png").stat().st_size > 1000
+    assert "(no gap to reduce)" in printed and "named effect: none" in printed
+    # the noise estimate is the floor, never 0, and the report says the runs look noise-free
+    assert set(rep["noise_at_floor"]) == {"x", "p_drive", "p_exhaust"}
+    assert all(v > 0 for v in rep["noise_sigma"].values())
+    assert any("look noise-free" in w for w in rep["warnings"]) and "look noise-free" in printed
+    # the Python API too; the updated model is the JSON's rig
+    d = Discrepancy(**FAST).fit(runs)
+    assert d.gap_reduction is None and d.named_effect_ == "none" and d.updated_model == runs[0].rig()
+    assert "(no gap to reduce)" in d.summary()
+
+
+def test_exact_fits_and_zero_noise_do_not_divide_by_zero(protocol_runs):
+    from pneugym.discrepancy.residuals import NOISE_FLOOR, noise_at_floor
+    from pneugym.discrepancy.workflow import reduction, z_score
+    clean = [simulate_run(thesis_rig(2.5), t_end=0.5, noise=None)]
+    sigma = estimate_noise(clean)
+    assert sigma == {c: NOISE_FLOOR[c] for c in ("x", "p_drive", "p_exhaust")}
+    assert noise_at_floor(sigma) == ["x", "p_drive", "p_exhaust"]
+    assert noise_at_floor(estimate_noise(protocol_runs[1])) == []
+    # an exact fit of a real misfit is infinitely significant, not "not significant"
+    assert f_test(100.0, 0.0, 1, 3, 50.0) == (math.inf, 0.0)
+    assert lr_test(100.0, 0.0, 50.0) == (math.inf, 0.0)
+    assert f_test(0.0, 0.0, 1, 3, 50.0) == (0.0, 1.0) and lr_test(0.0, 0.0, 50.0) == (0.0, 1.0)
+    # a zero standard error: an effect at its null is not away from it
+    assert z_score(0.0, 0.0, 0.0) == 0.0 and z_score(1e-7, 0.0, 0.0) == math.inf
+    assert z_score(3e-7, 0.0, 1e-7) == pytest.approx(3.0)
+    assert reduction(0.0, 0.0) is None and reduction(1e-12, 1e-3) is None
+    assert reduction(0.1, 0.025) == pytest.approx(0.75)
+    # a candidate fitting exactly is separated from one that does not
+    d = Discrepancy()
+    d.candidates_ = [_cand("leakage", 0.0), _cand("heat_transfer", 100.0)]
+    d._decide()
+    assert d.named_effect_ == "leakage"
+
+
+# -- the CLI: an empty --out, plant failures ------------------------------------------------------
+def test_cli_refuses_an_empty_out(tmp_path, capsys, monkeypatch):
+    stem = write_run(simulate_run(thesis_rig(2.5), t_end=0.1, noise=None), tmp_path / "runs" / "r")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(Discrepancy, "fit", lambda *a: pytest.fail("fit started with --out ''"))
+    for out in ("", "  "):
+        assert main([str(stem), "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {out!r} is empty" in err and "current folder" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # nothing written here
+
+
+def test_report_refuses_an_empty_folder(leak_case, tmp_path, monkeypatch):
+    *_, d, _ = leak_case
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="report folder '' is empty"):
+        d.report("")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("error", [
+    SimulationError("simulation went non-physical at t = 0.3 s: a non-finite value (NaN/inf)"),
+    ValueError("schedule[0] time = 1e9 s is more than 3600 s in one call"),
+])
+def test_cli_turns_plant_failures_into_exit_2_naming_the_run(tmp_path, capsys, monkeypatch, error):
+    from pneugym.discrepancy import residuals
+    stem = write_run(simulate_run(thesis_rig(2.5), t_end=0.1, noise=None), tmp_path / "r")
+
+    class FailingPlant:
+        def __init__(self, params):
+            pass
+
+        def run(self, *a, **k):
+            raise error
+    monkeypatch.setattr(residuals, "Plant", FailingPlant)
+    assert main([str(stem), "--out", str(tmp_path / "o"), "--quiet", "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: run 'r' (") and str(stem.with_suffix(".csv")) in err
+    assert str(error) in err and "Traceback" not in err
+    with pytest.raises(type(error), match=r"run 'r' \(.*r\.csv\): "):  # replay names the run
+        replay(read_run(stem), thesis_rig(2.5))
+
+
+# -- predict and score are bounded like the fit -------------------------------------------------------
+def test_predict_and_score_are_bounded_like_the_fit(leak_case, single_long_run, monkeypatch):
+    from pneugym.discrepancy import residuals
+    _, _, runs, d, _ = leak_case
+    long_run, _, _ = single_long_run
+    simulated = []
+    real_plant = residuals.Plant
+
+    class Recording(real_plant):
+        def run(self, t_end, *a, **k):
+            simulated.append(t_end)
+            return super().run(t_end, *a, **k)
+    monkeypatch.setattr(residuals, "Plant", Recording)
+    p = d.predict(long_run)  # 120 s at 1 kHz: cut and averaged as the fit would
+    assert max(simulated) <= MAX_WINDOW_S + 1.0
+    assert len(p["t"]) <= d.max_samples and p["t"][-1] <= MAX_WINDOW_S
+    assert all(a.shape == p["t"].shape for a in p.values())
+    (prep,) = d.prepared([long_run])
+    np.testing.assert_array_equal(p["t"], prep.t)
+    simulated.clear()
+    assert math.isfinite(d.score([long_run])) and max(simulated) <= MAX_WINDOW_S + 1.0
+    # a short run is predicted at its own samples, as before
+    short = d.predict(runs[0])
+    np.testing.assert_array_equal(short["t"], runs[0].t)
+    assert short["x"].shape == runs[0].x.shape

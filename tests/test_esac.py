@@ -228,10 +228,119 @@ def test_damaged_or_foreign_files_are_named(tmp_path):
         esac.load(tmp_path / "meta.pt")
     torch.save({"format": esac.FORMAT, "state_dict": {}, "meta": json.dumps({"n_in": "x"})},
                tmp_path / "meta2.pt")
-    with pytest.raises(ValueError, match="meta2.pt: its metadata lacks a valid n_in"):
+    with pytest.raises(ValueError, match="meta2.pt: its metadata.s n_in is .x.; expected the "
+                                         "network.s input size"):
         esac.load(tmp_path / "meta2.pt")
     esac.save(tmp_path / "other.pt", pred.net, {**meta, "hidden": [16]})
     with pytest.raises(ValueError, match="other.pt: its weights do not fit the network"):
         esac.load(tmp_path / "other.pt")
     with pytest.raises(FileNotFoundError, match="no ESAC model at"):
         esac.load(tmp_path / "missing.pt")
+
+
+# ------------------------------------------------------------------------------------------------
+# metadata and rule parameters: checked, each problem named with the file and key
+# ------------------------------------------------------------------------------------------------
+def _meta_file(tmp_path, name="m.pt", **changes):
+    import json
+
+    pred = _predictor()
+    meta = {"n_in": 14, "hidden": [8], "layout": pred.layout, "delay_input": False,
+            "lookahead_s": [], "rule": {"margin": 0.05, "lookahead": 0.0}}
+    for key, value in changes.items():
+        if value is ...:
+            meta.pop(key)
+        elif key == "rule":
+            meta["rule"] = value if not isinstance(value, dict) else {**meta["rule"], **value}
+        else:
+            meta[key] = value
+    torch.save({"format": esac.FORMAT, "state_dict": pred.net.state_dict(),
+                "meta": json.dumps(meta)}, tmp_path / name)
+    return tmp_path / name
+
+
+def _without_position():
+    lay = dict(_layout())
+    lay["features"] = [f for f in lay["features"] if f["name"] != "position"]
+    lay["size"] = 12
+    return lay
+
+
+@pytest.mark.parametrize("changes, match", [
+    ({"layout": {}}, r"its metadata's layout has no 'features'"),
+    ({"layout": "x"}, r"its metadata's layout is 'x'; expected an object"),
+    ({"layout": ...}, r"its metadata's layout is None"),
+    ({"layout": _without_position()}, r"features \[.*\] lack \['position'\]"),
+    ({"layout": {**_layout(), "features": "abc"}}, r"features is 'abc'"),
+    ({"layout": {**_layout(), "history": 0}}, r"history is 0"),
+    ({"n_in": 15}, r"its metadata's n_in is 15; expected 14: the layout's size 14"),
+    ({"n_in": True}, r"n_in is True"),
+    ({"hidden": [10 ** 5] * 3}, r"hidden is \[100000, 100000, 100000\]; expected a list of at "
+                                r"most 16 layer widths from 1 to 4096"),
+    ({"hidden": [4096] * 16}, r"describes a network .* of [\d,]+ bytes of weights, but the file "
+                              r"holds"),
+    ({"delay_input": "false"}, r"delay_input is 'false'; expected true or false"),
+    ({"lookahead_s": "abc"}, r"lookahead_s is 'abc'"),
+    ({"lookahead_s": [None]}, r"lookahead_s is \[None\]"),
+    ({"lookahead_s": [1e308]}, r"lookahead_s is \[1e\+308\]"),
+    ({"rule": []}, r"its metadata's rule is \[\]; expected an object of rule parameters"),
+    ({"rule": "x"}, r"its metadata's rule is 'x'"),
+    ({"rule": {"margin": "abc"}}, r"its metadata's rule: margin = 'abc': expected the accepted "
+                                  r"predicted risk of an incomplete stroke, a probability in "
+                                  r"\[0, 1\]"),
+    ({"rule": {"margin": None}}, r"rule: margin = None"),
+    ({"rule": {"margin": float("nan")}}, r"rule: margin = nan"),
+    ({"rule": {"max_stick": float("nan")}}, r"rule: max_stick = nan"),
+    ({"rule": {"max_time_increase": -1}}, r"rule: max_time_increase = -1: expected the time "
+                                          r"demand"),
+    ({"rule": {"lookahead": 0.5}}, r"rule: lookahead = 0.5: expected 0 .* or 1"),
+    ({"rule": {"lookahead": 1e30}}, r"rule: lookahead = 1e\+30"),
+    ({"rule": {"margin": [0.1, 0.2]}}, r"rule: margin = \[0.1, 0.2\]"),
+    ({"rule": {"bogus": 1}}, r"rule: 'bogus' is not an ESAC rule parameter"),
+    ({"rule": {"time_demand_s": 0}}, r"rule: time_demand_s = 0: expected an absolute time "
+                                     r"demand, seconds > 0"),
+])
+def test_malformed_metadata_is_named(tmp_path, changes, match):
+    f = _meta_file(tmp_path, **changes)
+    with pytest.raises(ValueError, match=f"m.pt: .*{match}"):
+        esac.load_policy(f, _layout(1))
+
+
+def test_damaged_weights_are_named(tmp_path):
+    pred = _predictor()
+    state = pred.net.state_dict()
+    for key, value in (("in_std", torch.zeros_like(state["in_std"])),
+                       ("body.0.weight", torch.full_like(state["body.0.weight"], float("nan")))):
+        bad = dict(state, **{key: value})
+        torch.save({"format": esac.FORMAT, "state_dict": bad, "meta": __import__("json").dumps(
+            {"n_in": 14, "hidden": [8], "layout": pred.layout})}, tmp_path / "w.pt")
+        with pytest.raises(ValueError, match=f"w.pt: its weights \\['{key}'\\] hold NaN"):
+            esac.load(tmp_path / "w.pt")
+
+
+def test_saved_rule_values_are_normalised_and_applied(tmp_path):
+    f = _meta_file(tmp_path, rule={"lookahead": 0.0, "time_demand_s": 1.5})
+    pol = esac.load_policy(f, _layout(1))
+    assert pol.rule()["lookahead"] == 0 and pol.rule()["time_demand_s"] == 1.5
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"margin": float("nan")}, "margin = nan"), ({"margin": "abc"}, "margin = 'abc'"),
+    ({"lookahead": 0.7}, "lookahead = 0.7"), ({"time_demand_s": -1.0}, "time_demand_s = -1.0"),
+    ({"max_stick": -5.0}, "max_stick = -5.0"), ({"w_stall": float("inf")}, "w_stall = inf"),
+    ({"hysteresis": None}, "hysteresis = None"),
+])
+def test_rule_overrides_are_checked(tmp_path, kw, match):
+    f = _meta_file(tmp_path)
+    with pytest.raises(ValueError, match=f"m.pt: the rule override: {match}: expected"):
+        esac.load_policy(f, _layout(1), **kw)
+    with pytest.raises(ValueError, match=f"rule: {match}"):  # the controller checks them too
+        esac.ESACPolicy(_layout(), _predictor(), **kw)
+
+
+def test_rule_arrays_are_checked_per_row():
+    pol = esac.ESACPolicy(_layout(), _predictor(), margin=np.array([0.0, 0.5, 1.0]),
+                          lookahead=np.array([0.0, 0.0, 0.0]))
+    assert pol.rule()["margin"] == [0.0, 0.5, 1.0] and pol.lookahead.dtype == np.int64
+    with pytest.raises(ValueError, match=r"rule: margin = nan"):
+        esac.ESACPolicy(_layout(), _predictor(), margin=np.array([0.1, np.nan]))

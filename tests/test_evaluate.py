@@ -1,4 +1,5 @@
-"""evaluate.py: suites, the results.json schema the issue fixes, oracle_fraction, outputs."""
+"""evaluate.py: suites, the results.json schema the issue fixes, oracle_fraction, outputs, and the
+refusals before any work (specs, models, overrides, --seed, --runs, --out)."""
 import json
 import math
 import sys
@@ -111,8 +112,9 @@ def test_unknown_policy_and_bad_path_are_refused_before_any_work(tmp_path, capsy
     assert not (tmp_path / "results.json").exists()
     bad = tmp_path / "bad.zip"
     bad.write_text("not a zip")
-    with pytest.raises(ValueError, match="not a stable-baselines3 model"):
+    with pytest.raises(SystemExit):
         ev.main(["--policies", f"x={bad}", "--suite", "nominal", "--out", str(tmp_path)])
+    assert "bad.zip is not a stable-baselines3 model" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("specs,msg", [
@@ -167,3 +169,143 @@ def test_policy_specs_with_decision_overrides():
         ev.parse_spec("p=runs/ppo:rule=quantile,margin=0.1")
     with pytest.raises(ValueError, match="key=value"):
         ev.parse_spec("p=runs/ppo:margin=0.1,oops")
+    with pytest.raises(ValueError, match="margin= has no value; give one"):
+        ev.parse_spec("e=runs/esac:margin=")
+    with pytest.raises(ValueError, match="margin is given twice"):
+        ev.parse_spec("e=runs/esac:margin=0.1,margin=0.2")
+    assert ev.parse_spec("e=runs/esac:margin=nan")[2] == {"margin": pytest.approx(math.nan,
+                                                                                  nan_ok=True)}
+
+
+# ------------------------------------------------------------------------------------------------
+# saved models and overrides are loaded and checked before any work
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    """A small PPO, DQN (SB3 zips, their layout recorded) and ESAC model (.pt)."""
+    from stable_baselines3 import DQN, PPO
+
+    from agents import esac
+    from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.envs.sb3 import CutOffVecEnv
+
+    root = tmp_path_factory.mktemp("models")
+    venv = CutOffVecEnv(num_envs=2)
+    lay = venv.observation_layout()
+    ppo = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, device="cpu", seed=0,
+              policy_kwargs={"net_arch": [8]})
+    ppo.pneugym_layout, ppo.pneugym_decision = lay, {"rule": "quantile", "value": 0.3}
+    ppo.save(root / "ppo.zip")
+    dqn = DQN("MlpPolicy", venv, learning_starts=0, buffer_size=100, device="cpu", seed=0,
+              policy_kwargs={"net_arch": [8]})
+    dqn.pneugym_layout, dqn.pneugym_decision = lay, {"rule": "advantage", "value": 0.0}
+    dqn.save(root / "dqn.zip")
+    elay = CutOffVectorEnv(num_envs=1, history=2).observation_layout()
+    esac.save(root / "esac.pt", esac.make_net(elay["size"], (8,)),
+              {"n_in": elay["size"], "hidden": [8], "layout": elay, "rule": {"margin": 0.05}})
+    return {"ppo": root / "ppo.zip", "dqn": root / "dqn.zip", "esac": root / "esac.pt"}
+
+
+def test_genuine_models_and_valid_overrides_load_up_front(models):
+    pols = ev.load_models([f"p={models['ppo']}", f"p3={models['ppo']}:value=0.5",
+                           f"d={models['dqn']}:rule=advantage,value=0.1",
+                           f"e={models['esac']}:margin=0.1,lookahead=0", "gaslaw"])
+    assert set(pols) == {"p", "p3", "d", "e"}
+    assert pols["p"].decision == {"rule": "quantile", "value": 0.3}
+    assert pols["p3"].decision == {"rule": "quantile", "value": 0.5}   # the saved rule kept
+    assert pols["d"].decision == {"rule": "advantage", "value": 0.1}
+    assert pols["e"].rule()["margin"] == 0.1
+
+
+@pytest.mark.parametrize("spec, match", [
+    ("p={ppo}:margin=0.1", r"is a stable-baselines3 model: its decision override takes rule= "
+                           r"and value= only, not \['margin'\] \(\['margin'\] are ESAC rule"),
+    ("p={ppo}:rule=quantile,value=nan", r"the decision value is nan for the quantile rule; "
+                                        r"expected a probability in \(0, 1\]"),
+    ("p={ppo}:rule=quantile,value=abc", r"the decision value is 'abc'"),
+    ("p={ppo}:rule=quantile,value=5", r"the decision value is 5.0 for the quantile rule"),
+    ("p={ppo}:rule=bogus", r"the decision rule is 'bogus'"),
+    ("p={ppo}:rule=hazard", r"sets the 'hazard' rule without a value; give value= too"),
+    ("p={ppo}:rule=argmax,value=0.2", r"gives value=0.2 for the argmax rule"),
+    ("d={dqn}:rule=quantile,value=0.5", r"the quantile rule needs a stochastic policy"),
+    ("e={esac}:margin=nan", r"the rule override: margin = nan: expected the accepted predicted "
+                            r"risk"),
+    ("e={esac}:margin=abc", r"margin = 'abc'"),
+    ("e={esac}:lookahead=0.5", r"lookahead = 0.5: expected 0 .* or 1"),
+    ("e={esac}:time_demand_s=-1", r"time_demand_s = -1.0: expected an absolute time demand"),
+    ("e={esac}:max_stick=-5", r"max_stick = -5.0"),
+    ("e={esac}:rule=argmax", r"is an ESAC model: rule= and value= override the decision of a "
+                             r"stable-baselines3 model"),
+    ("e={esac}:marjin=0.1", r"unknown ESAC rule parameter\(s\) \['marjin'\] \(did you mean "
+                            r"'margin'\?\)"),
+])
+def test_bad_overrides_are_refused_naming_the_spec(models, spec, match):
+    spec = spec.format(**models)
+    with pytest.raises(ValueError, match=match) as exc:
+        ev.load_models([spec])
+    assert str(exc.value).startswith(repr(spec))
+
+
+def test_unusable_models_stop_evaluate_before_any_episode_or_training(models, tmp_path,
+                                                                       monkeypatch, capsys):
+    """A damaged, unsafe or mismatched model, or a run folder without a model: exit 2 with the
+    message, before the reference policies run and before anything is trained."""
+    import zipfile
+
+    import train
+
+    def never(*args, **kwargs):
+        raise AssertionError("work started before the models were checked")
+
+    monkeypatch.setattr(ev, "run_policy", never)
+    monkeypatch.setattr(train, "train", never)
+    cut = tmp_path / "cut.zip"
+    cut.write_bytes(models["ppo"].read_bytes()[:300])
+    unsafe = tmp_path / "unsafe.zip"
+    with zipfile.ZipFile(models["ppo"]) as z, zipfile.ZipFile(unsafe, "w") as w:
+        for n in z.namelist():
+            data = z.read(n)
+            if n == "data":
+                d = json.loads(data)
+                d["evil"] = {":type:": "<class 'type'>", ":serialized:": "gAR9lC4="}
+                data = json.dumps(d).encode()
+            w.writestr(n, data)
+    (tmp_path / "norun").mkdir()
+    for spec, msg in ((f"x={cut}", "cut.zip"),
+                      (f"x={unsafe}", "holds a pickled object under 'evil'"),
+                      (f"x={tmp_path / 'norun'}", "a directory without a finished run.json")):
+        with pytest.raises(SystemExit) as exc:
+            ev.main(["--policies", "gaslaw", "ppo", spec, "--suite", "nominal",
+                     "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err, err
+    assert not (tmp_path / "out" / "results.json").exists()
+    assert not (tmp_path / "runs").exists()  # nothing trained on demand
+
+
+def test_seed_runs_and_out_are_checked_before_any_work(tmp_path, monkeypatch, capsys):
+    import pneugym.outputs
+
+    monkeypatch.setattr(ev, "run_policy", lambda *a, **k: pytest.fail("episodes ran"))
+    with pytest.raises(SystemExit):
+        ev.main(["--policies", "gaslaw", "--seed", "-1", "--out", str(tmp_path)])
+    assert "--seed -1: episode seeds must be integers from 0" in capsys.readouterr().err
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    with pytest.raises(SystemExit):
+        ev.main(["--policies", "gaslaw", "ppo", "--runs", str(afile), "--out", str(tmp_path)])
+    assert f"--runs {afile} is a file" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        ev.main(["--policies", "esac", "--runs", str(tmp_path / "r"), "--budget", "quik",
+                 "--out", str(tmp_path)])
+    assert "has no budget 'quik' (did you mean 'quick'?)" in capsys.readouterr().err
+    # --out "" reaches check_output_dir as given (not as Path("") == "."), which refuses it
+    seen = []
+    real = pneugym.outputs.check_output_dir
+    monkeypatch.setattr(ev, "check_output_dir", lambda p, what: seen.append(p) or real(p, what))
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        ev.main(["--policies", "gaslaw", "--suite", "nominal", "--out", ""])
+    assert seen == [""] and "--out is empty" in capsys.readouterr().err
+    assert not (tmp_path / "results.json").exists()

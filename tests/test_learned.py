@@ -185,3 +185,47 @@ def test_asymmetric_actor_ignores_privileged_features():
     with pytest.raises(LayoutMismatchError, match="time_limit_s"):
         SB3Policy(CutOffVectorEnv(num_envs=1, time_limit_s=6.0).observation_layout(), loaded,
                   lay)
+
+
+def test_recorded_layouts_are_checked_before_use():
+    from agents.learned import check_layout_record
+
+    good = layout(history=3, observe_params=True)
+    assert check_layout_record(good, "m.zip: pneugym_layout") is good
+    for bad, match in (
+            ([], r"m: x is \[\]; expected an object"),
+            ({**good, "features": good["features"] * 10}, r"expected a list of up to 64"),
+            ({**good, "param_features": "abc"}, r"param_features is 'abc'"),
+            ({**good, "history": True}, r"history is True"),
+            ({**good, "history": 10 ** 6}, r"history is 1000000; expected an integer from 1 to "
+                                           r"1000"),
+            ({**good, "size": 21}, r"size is 21; expected 24 \(history 3 x 7 features \+ 3 "
+                                   r"privileged features\)"),
+            ({**good, "control_period_s": float("inf")}, r"control_period_s is inf"),
+            ({**good, "features": [{"name": "position", "scale": 1.0}] * 2}, r"names 'position' "
+                                                                             r"twice"),
+            ({**good, "features": [{**f, "unit": 1} for f in good["features"]]},
+             r"features\[0\] \('position'\).unit is 1; expected text")):
+        with pytest.raises(LayoutMismatchError, match=match):
+            check_layout_record(bad, "m: x")
+
+
+def test_decisions_are_checked():
+    from agents.learned import check_decision
+
+    assert check_decision({"rule": "argmax"}, "d") == {"rule": "argmax"}
+    assert check_decision({"rule": "quantile", "value": 1}, "d")["value"] == 1
+    arr = np.array([0.1, 0.5])
+    assert check_decision({"rule": "hazard", "value": arr}, "d", per_row=True)["value"] is arr
+    for bad, match in (({"rule": "hazard", "value": np.array([0.1, 1.5])}, r"value is"),
+                       ({"rule": "quantile", "value": True}, r"value is True"),
+                       ({"rule": "quantile", "value": -0.1}, r"\(0, 1\]"),
+                       ({"rule": "advantage", "value": float("-inf")}, r"a finite number"),
+                       ({"rule": "argmax", "value": "x"}, r"argmax does not use it"),
+                       ({"rule": None}, r"the decision rule is None")):
+        with pytest.raises(ValueError, match=f"d: .*{match}"):
+            check_decision(bad, "d", per_row=True)
+    _, lay, ppo = _ppo_cutting_with(0.1)
+    from agents.learned import SB3Policy
+    with pytest.raises(ValueError, match=r"the decision value is nan for the quantile rule"):
+        SB3Policy(lay, ppo, lay, decision={"rule": "quantile", "value": float("nan")})

@@ -269,6 +269,15 @@ def test_wrong_observation_size_is_a_layout_error(runs, tmp_path):
         return lambda d: d["observation_space"].update(_shape=value)
 
     f = _rewrite(runs["dqn"] / "best_model.zip", tmp_path / "m.zip", shape([99]))
+    with pytest.raises(LayoutMismatchError, match=r"_shape is \(99,\), but its recorded "
+                                                  r"observation layout has size 21"):
+        safe_load.load_sb3(f, "dqn")  # refused before any space or network is built
+
+    def shape_only(d):  # no layout recorded: the weights tell
+        d["observation_space"]["_shape"] = [99]
+        d.pop("pneugym_layout")
+
+    f = _rewrite(runs["dqn"] / "best_model.zip", tmp_path / "m.zip", shape_only)
     with pytest.raises(LayoutMismatchError, match="weights do not fit 99 observations"):
         safe_load.load_sb3(f, "dqn")
     # an unreadable size: the one pneugym recorded (21 = history 3 x 7) is used
@@ -401,6 +410,8 @@ def test_symlinks_out_of_the_run_are_refused(runs, tmp_path):
     ("[1, 2]", "holds a JSON list, expected an object"),
     ('{"model": 5}', "'model' is 5; expected the name of a file"),
     ('{"model": "m.zip", "algo": ["ppo"]}', "'algo' is \\['ppo'\\]; expected a JSON str"),
+    ('{"a": ' + "[" * 100_000, "its JSON is nested too deeply"),
+    ('{"seed": 1' + "0" * 5000 + "}", "not a run record train.py wrote: Exceeds the limit"),
 ])
 def test_malformed_run_json_is_named(tmp_path, text, match):
     (tmp_path / "run.json").write_text(text)
@@ -410,3 +421,169 @@ def test_malformed_run_json_is_named(tmp_path, text, match):
         load_policy(tmp_path, _env())
     with pytest.raises(RunFileError, match=match):
         train.model_path(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------------
+# malformed entries: a ValueError naming the file and the key, never a raw traceback
+# ------------------------------------------------------------------------------------------------
+def _serialized_pkw(extra):
+    def edit(d):
+        d["policy_kwargs"] = {":type:": "<class 'dict'>", ":serialized:": "gAR9lC4=",
+                              **d["policy_kwargs"], **extra}
+    return edit
+
+
+@pytest.mark.parametrize("value", [{"a": 1}, [1], 5, None])
+def test_unhashable_classes_in_pickled_policy_kwargs_are_refused(runs, tmp_path, value):
+    f = _rewrite(runs["ppo"] / "best_model.zip", tmp_path / "m.zip",
+                 _serialized_pkw({"activation_fn": value}))
+    with pytest.raises(safe_load.UnsafeModelError, match=r"m.zip holds a pickled object under "
+                                                         r"'policy_kwargs'.*its activation_fn is"):
+        safe_load.load_sb3(f, "ppo")
+
+
+@pytest.mark.parametrize("layout, match", [
+    ("abc", r"pneugym_layout is 'abc'; expected an object"),
+    ({}, r"pneugym_layout has no 'features'"),
+    ({"features": "abc"}, r"pneugym_layout: features is 'abc'; expected a list"),
+    ({"history": 0}, r"pneugym_layout: history is 0; expected an integer from 1 to 1000"),
+    ({"history": -3}, r"history is -3"),
+    ({"history": 2.5}, r"history is 2.5"),
+    ({"size": "21"}, r"pneugym_layout: size is '21'; expected 21"),
+    ({"size": 10 ** 9}, r"size is 1000000000; expected 21"),
+    ({"control_period_s": "5ms"}, r"control_period_s is '5ms'"),
+    ({"features": [{"name": "position", "scale": float("nan")}]},
+     r"features\[0\] \('position'\).scale is nan"),
+    ({"features": [{"name": "time", "scale": 4.0}]}, r"lack \['position', 'supply_cut'\]"),
+])
+def test_malformed_recorded_layouts_are_named(runs, tmp_path, layout, match):
+    def edit(d):
+        d["pneugym_layout"] = layout if not isinstance(layout, dict) or not layout else {
+            **d["pneugym_layout"], **layout}
+
+    f = _rewrite(runs["dqn"] / "best_model.zip", tmp_path / "m.zip", edit)
+    with pytest.raises(LayoutMismatchError, match=f"m.zip: .*{match}"):
+        load_policy(f, _env())
+
+
+@pytest.mark.parametrize("algo, decision, match", [
+    ("dqn", "argmax", r" is 'argmax'; expected an object"),
+    ("dqn", [1], r" is \[1\]"),
+    ("dqn", {"rule": "argmaxx"}, r"the decision rule is 'argmaxx'.*did you mean 'argmax'"),
+    ("dqn", {"rule": "advantage", "value": "abc"}, r"the decision value is 'abc' for the "
+                                                   r"advantage rule; expected a finite number"),
+    ("dqn", {"rule": "advantage", "value": float("nan")}, r"the decision value is nan"),
+    ("dqn", {"rule": "advantage", "value": [0.1, 0.2]}, r"the decision value is \[0.1, 0.2\]"),
+    ("dqn", {"rule": "advantage"}, r"the advantage rule without a value"),
+    ("dqn", {"rule": "quantile", "value": 0.5}, r"the quantile rule needs a stochastic policy"),
+    ("dqn", {"rule": "advantage", "value": 0.1, "grid": [1]}, r"has \['grid'\]"),
+    ("ppo", {"rule": "quantile", "value": 5}, r"the decision value is 5 for the quantile rule; "
+                                              r"expected a probability in \(0, 1\]"),
+    ("ppo", {"rule": "hazard", "value": 0}, r"the decision value is 0 for the hazard rule"),
+    ("ppo", {"rule": "advantage", "value": 0}, r"the advantage rule needs a Q-network"),
+])
+def test_malformed_recorded_decisions_are_named(runs, tmp_path, algo, decision, match):
+    f = _rewrite(runs[algo] / "best_model.zip", tmp_path / "m.zip",
+                 lambda d: d.update(pneugym_decision=decision))
+    with pytest.raises(ValueError, match=f"m.zip: pneugym_decision.*{match}"):
+        load_policy(f, _env())
+
+
+def test_data_json_beyond_the_parser_limits_names_the_file(runs, tmp_path):
+    src = runs["ppo"] / "best_model.zip"
+    with zipfile.ZipFile(src) as z:
+        entries = {n: z.read(n) for n in z.namelist()}
+    for name, data, match in (
+            ("digits.zip", b'{"n_steps": 1' + b"0" * 5000 + b"}", "not the JSON of a "
+                                                                 "stable-baselines3 model"),
+            ("deep.zip", b'{"a": ' + b"[" * 100_000, "nested too deeply")):
+        with zipfile.ZipFile(tmp_path / name, "w") as z:
+            for n, b in entries.items():
+                z.writestr(n, data if n == "data" else b)
+        with pytest.raises(ValueError, match=f"{name}: its 'data' entry .*{match}"):
+            safe_load.load_sb3(tmp_path / name, "ppo")
+
+
+# ------------------------------------------------------------------------------------------------
+# small files never make pneugym allocate much: sizes are checked before anything is built
+# ------------------------------------------------------------------------------------------------
+def _peak_mb(fn):
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        fn()
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    return peak / 2 ** 20
+
+
+def test_a_huge_observation_size_is_refused_before_a_space_is_built(runs, tmp_path):
+    def no_layout(d):
+        d["observation_space"]["_shape"] = [10 ** 9]
+        d.pop("pneugym_layout")
+
+    f = _rewrite(runs["dqn"] / "best_model.zip", tmp_path / "m.zip", no_layout)
+
+    def load():
+        with pytest.raises(LayoutMismatchError, match=r"_shape is \(1000000000,\), but the "
+                                                      r"environment's observation has size 7"):
+            load_policy(f, _env())
+    assert _peak_mb(load) < 64
+    with pytest.raises(ValueError, match=r"_shape is \(1000000000,\); the cut-off environment's "
+                                         r"observations have at most 65536"):
+        safe_load.load_sb3(f, "dqn")  # no environment to compare with: bounded anyway
+
+
+def test_a_network_larger_than_its_weights_is_refused_before_it_is_built(runs, tmp_path):
+    f = _rewrite(runs["ppo"] / "best_model.zip", tmp_path / "m.zip",
+                 lambda d: d["policy_kwargs"].update(net_arch=[300_000, 300_000]))
+
+    def load():
+        with pytest.raises(ValueError, match=r"m.zip: its policy_kwargs \(net_arch \[300000, "
+                                             r"300000\]\).*but policy.pth holds"):
+            load_policy(f, _env())
+    assert _peak_mb(load) < 64
+
+
+def test_zip_entries_are_sized_before_they_are_read(runs, tmp_path, monkeypatch):
+    src = runs["ppo"] / "best_model.zip"
+    with zipfile.ZipFile(src) as z:
+        entries = {n: z.read(n) for n in z.namelist()}
+    # a data entry that inflates beyond 16 MB (here 20 MB of spaces in 20 kB)
+    with zipfile.ZipFile(tmp_path / "big.zip", "w", zipfile.ZIP_DEFLATED) as z:
+        for n, b in entries.items():
+            z.writestr(n, b + b" " * (20 << 20) if n == "data" else b)
+    assert (tmp_path / "big.zip").stat().st_size < 1 << 20
+
+    def load():
+        with pytest.raises(ValueError, match=r"big.zip: its entry 'data' inflates to 20,9\d\d,\d+ "
+                                             r"bytes, more than the 16,777,216"):
+            safe_load.load_sb3(tmp_path / "big.zip", "ppo")
+    assert _peak_mb(load) < 16
+    # an entry that inflates a thousandfold (a zip bomb), and too many entries
+    with zipfile.ZipFile(tmp_path / "bomb.zip", "w", zipfile.ZIP_DEFLATED) as z:
+        for n, b in entries.items():
+            z.writestr(n, b)
+        z.writestr("extra.bin", b"\0" * (40 << 20))
+    monkeypatch.setattr(safe_load, "MAX_INFLATION", 100)
+    with pytest.raises(ValueError, match=r"bomb.zip: its entry 'extra.bin' inflates .* "
+                                         r"\(a zip bomb\)"):
+        safe_load.load_sb3(tmp_path / "bomb.zip", "ppo")
+    monkeypatch.setattr(safe_load, "MAX_ENTRIES", 3)
+    with pytest.raises(ValueError, match=r"m.zip holds \d+ entries"):
+        safe_load.load_sb3(shutil.copy(src, tmp_path / "m.zip"), "ppo")
+
+
+def test_replay_buffers_get_the_umask_mode(tmp_path):
+    """Like the checkpoints beside them (not mkstemp's 0600)."""
+    from types import SimpleNamespace
+
+    buf = SimpleNamespace(pos=0, full=False, **{k: np.zeros((4, 1, 3), np.float32)
+                                                for k in safe_load.REPLAY_ARRAYS})
+    f = safe_load.save_replay_buffer(buf, tmp_path / "replay_000000001.npz")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert f.stat().st_mode & 0o777 == 0o666 & ~mask
+    assert [p.name for p in tmp_path.iterdir()] == [f.name]

@@ -377,13 +377,29 @@ def test_from_measurement_keeps_the_given_base():
     assert p == base.with_(cylinder={"stroke_m": 0.15})
 
 
-def test_from_measurement_ignores_unknown_keys():
+def test_from_measurement_ignores_unknown_top_level_keys_but_refuses_unknown_rig_keys():
     meta = _full_meta()
     meta["unknown_top"] = 1.0
-    meta["rig"]["unknown_rig_key"] = 3.0
-    meta["rig"]["n_cells"] = 99
-    meta["rig"]["friction"]["stribeck_n"] = 5.0
     assert RigParams.from_measurement(meta) == RigParams.from_measurement(_full_meta())
+    for section, key, nearest in (("rig", "bore", "bore_m"), ("rig", "n_cells", None),
+                                  ("friction", "static", "static_n")):
+        meta = _full_meta()
+        (meta["rig"] if section == "rig" else meta["rig"]["friction"])[key] = 3.0
+        with pytest.raises(ValueError, match=rf"{key} is unknown" + (
+                rf".*did you mean '{nearest}'" if nearest else "")):
+            RigParams.from_measurement(meta)
+
+
+@pytest.mark.parametrize("meta,pattern", [
+    ({"supply_pressure_gauge_pa": "2e5"}, r"supply_pressure_gauge_pa = '2e5'.*finite number"),
+    ({"load_mass_kg": None}, r"load_mass_kg = None"),
+    ({"rig": [1]}, r"key 'rig' must be an object"),
+    ({"rig": {"friction": 3}}, r"rig.friction' must be an object"),
+    ([("rig", {})], r"must be an object"),
+])
+def test_from_measurement_refuses_strings_none_and_wrong_types(meta, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        RigParams.from_measurement(meta)
 
 
 def test_from_measurement_validates_values():
@@ -558,6 +574,43 @@ def test_a_rig_that_can_never_move_says_why():
     assert "static friction" in RigParams().with_(friction={"static_n": 1e5}).cannot_move()
     assert RigParams(supply_pressure_gauge_pa=40_000.0).cannot_move() is None  # ~460 N
     assert RigParams().cannot_move() is None
+
+
+@pytest.mark.parametrize("cls,kw,pattern", [
+    (RigParams, {"supply_pressure_gauge_pa": [2.5e5]}, r"supply_pressure_gauge_pa = \[250000.0\]"),
+    (RigParams, {"load_mass_kg": (10,)}, r"load_mass_kg = \(10,\)"),
+    (CylinderParams, {"bore_m": [0.1]}, r"bore_m = \[0.1\]"),
+    (LineParams, {"model": 3}, r"model = 3.*string"),
+])
+def test_lists_and_wrong_types_in_number_fields_are_a_valueerror(cls, kw, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        cls(**kw)
+
+
+def test_numbers_of_any_real_type_are_stored_as_floats():
+    from fractions import Fraction
+
+    a = RigParams(supply_pressure_gauge_pa=Fraction(250000), load_mass_kg=np.float32(10))
+    assert a == RigParams() and hash(a) == hash(RigParams())
+    assert type(a.supply_pressure_gauge_pa) is float and type(a.load_mass_kg) is float
+    assert type(LineParams(n_cells=np.int64(3)).n_cells) is int
+
+
+@pytest.mark.parametrize("changes,pattern", [
+    ({"valve": {"ramp_s": 10.0}}, r"ramp_s.*ms given as s"),
+    ({"effects": {"sensor_lag_s": 20.0}}, r"sensor_lag_s.*ms given as s"),
+    ({"effects": {"leak_drive_area_m2": 1.0}}, r"leak_drive_area_m2.*mm² given as m²"),
+    ({"effects": {"dead_volume_m3": 5.0}}, r"EffectParams.dead_volume_m3.*litres"),
+    ({"line": {"tee_volumes": ((0.1, 4.0),)}}, r"tee_volumes\[0\].*cm³ given as m³"),
+    ({"gas": {"viscosity_pa_s": 1.81}}, r"viscosity_pa_s"),
+    ({"gas": {"gas_constant_j_per_kg_k": 0.287}}, r"gas_constant_j_per_kg_k.*kJ given as J"),
+    ({"solver": {"dt_s": 1e-9}}, r"dt_s.*>= min_dt_s"),
+    ({"solver": {"min_dt_s": 1e-12}}, r"min_dt_s"),
+    ({"load_mass_kg": 0.0, "cylinder": {"moving_mass_extra_kg": 0.0}}, r"moving mass.*must be > 0"),
+])
+def test_more_unit_slips_and_impossible_values_are_refused(changes, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        RigParams().with_(**changes)
 
 
 def test_malformed_tee_volumes_are_a_valueerror():

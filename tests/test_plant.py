@@ -906,3 +906,26 @@ def test_a_user_substep_is_never_changed_behind_the_users_back():
     dt = Plant(rig).dt_s
     with pytest.raises(SimulationError, match="limited by user"):
         Plant(rig.with_(solver={"dt_s": dt})).run(1.0, record_dt=5e-3)
+
+
+@pytest.mark.parametrize("kw,pattern", [
+    ({"p_line_pa": -5.0}, "p_line_pa"), ({"p_line_pa": float("nan")}, "p_line_pa"),
+    ({"p_line_pa": "3e5"}, "p_line_pa"), ({"p_line_pa": [1e5, 2e5]}, "one per line cell"),
+    ({"position_m": "0.1"}, "position_m"), ({"position_m": 9.0}, "position_m"),
+    ({"p_drive_pa": "3e5"}, "p_drive_pa"), ({"p_exhaust_pa": -1.0}, "p_exhaust_pa"),
+])
+def test_reset_refuses_bad_initial_states(kw, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        Plant().reset(**kw)
+
+
+@pytest.mark.parametrize("call,pattern", [
+    (lambda pl: pl.set_supply_dip(depth=None), "depth = None"),
+    (lambda pl: pl.set_supply_dip(start_s="0.1"), "start_s = '0.1'"),
+    (lambda pl: pl.run(1.0, schedule=None), "schedule = None"),
+    (lambda pl: pl.run(True), "t_end = True"),
+    (lambda pl: PlantBatch(RigParams()), "a list of RigParams"),
+])
+def test_wrong_types_are_a_valueerror_not_a_typeerror(call, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        call(Plant())

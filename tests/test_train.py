@@ -186,17 +186,49 @@ def test_a_run_is_never_overwritten(runs, tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
     (other / "notes.txt").write_text("mine")
-    with pytest.raises(ValueError, match=r"other is not empty \(1 entries: notes.txt\) and "
-                                         r"holds no run.json"):
-        train.train("ppo", other, timesteps=256, seed=1, progress=False,
-                    overrides=_small("ppo", d))
-    # --force starts over: says what it removes, keeps what train.py did not write
-    (d / "notes.txt").write_text("mine")
-    train.train("ppo", d, timesteps=256, seed=2, force=True, progress=False,
-                overrides=_small("ppo", tmp_path))
+    for force in (False, True):  # not a train.py run: refused, even with --force
+        with pytest.raises(ValueError, match=r"other is not empty \(1 entries: notes.txt\) and "
+                                             r"holds no run.json: it is not a train.py run, so "
+                                             r"nothing in it is removed \(not even with "
+                                             r"--force\)"):
+            train.train("ppo", other, timesteps=256, seed=1, progress=False, force=force,
+                        overrides=_small("ppo", d))
+    assert [p.name for p in other.iterdir()] == ["notes.txt"]
+    # --force starts over: lists what it removes first, then removes exactly train.py's files
+    mine = {"notes.txt": "mine", "progress_notes.csv": "a,b", "draft.tmp": "x",
+            "tb/mine.txt": "y", "checkpoints/notes.txt": "z", "model.zip.bak": "w",
+            "events.out.tfevents.mine": "v"}
+    for name, text in mine.items():
+        (d / name).parent.mkdir(exist_ok=True)
+        (d / name).write_text(text)
+    (d / "progress.1.csv").write_text("old log")          # train.py's: removed
+    (d / ".run.json.x1y2z3.tmp").write_text("{")          # a killed atomic write: removed
+    (d / "tb" / "events.out.tfevents.1700000000.host.1.0").write_text("tb")
+    printed_before_removal = []
+    real_unlink = Path.unlink
+
+    def unlink(self, *a, **k):
+        if not printed_before_removal:
+            printed_before_removal.append(capsys.readouterr().out)
+        return real_unlink(self, *a, **k)
+
+    import unittest.mock
+    with unittest.mock.patch.object(Path, "unlink", unlink):
+        train.train("ppo", d, timesteps=256, seed=2, force=True, progress=False,
+                    overrides=_small("ppo", tmp_path))
+    listed = printed_before_removal[0]
+    assert "removing the previous run's" in listed
+    for f in ("run.json", "best_model.zip", "model.zip", "progress.csv", "progress.1.csv",
+              ".run.json.x1y2z3.tmp", "tb/events.out.tfevents.1700000000.host.1.0"):
+        assert f in listed
+    assert "checkpoints/ckpt_" in listed
+    for name in mine:  # never removed, never listed as removed
+        assert name not in listed.split("removing the previous run's", 1)[1].split("\n")[0]
     out = capsys.readouterr().out
-    assert "removed the previous run's" in out and "best_model.zip" in out
-    assert "checkpoints/" in out and "kept notes.txt" in out
+    assert "kept " in out and "notes.txt" in out and "tb/mine.txt" in out
+    for name, text in mine.items():
+        assert (d / name).read_text() == text
+    assert not (d / "progress.1.csv").exists() and not (d / ".run.json.x1y2z3.tmp").exists()
     run = json.loads((d / "run.json").read_text())
     assert run["seed"] == 2 and run["status"] == "finished" and run["timesteps_done"] == 256
     assert len(run["validation"]) == 1 and not (d / "progress.1.csv").exists()
@@ -422,3 +454,178 @@ def test_sigterm_interrupts_esac_at_once(tmp_path, monkeypatch):
     assert run["status"] == "interrupted" and run["interrupted"]["signal"] == "SIGTERM"
     with pytest.raises(ValueError, match="ESAC trains in one piece"):
         train.train("esac", tmp_path / "esac", resume=True, progress=False)
+
+
+# ------------------------------------------------------------------------------------------------
+# the configuration is checked whole before anything is written
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture
+def nothing_runs(monkeypatch):
+    """Training, thread set-up and run.json writes fail the test if they are reached."""
+    def never(*args, **kwargs):
+        raise AssertionError("training started")
+
+    for name in ("train_sb3", "train_esac", "_threads", "atomic_write_json"):
+        monkeypatch.setattr(train, name, never)
+
+
+@pytest.mark.parametrize("algo, overrides, match", [
+    ("ppo", ["algo.n_stepz=64"], r"--set algo.n_stepz=64: 'algo.n_stepz' is not a known keyword "
+                                 r"of stable_baselines3.PPO \(did you mean 'n_steps'\?\)"),
+    ("ppo", ["env.num_envs=0"], r"--set env.num_envs=0: env.num_envs = 0: expected an integer "
+                                r"from 1 to 4,096"),
+    ("ppo", ["algo.learning_rate=abc"], r"algo.learning_rate = 'abc': expected a finite number "
+                                        r"> 0, or lin_<x>.*\(it is text, not a number\)"),
+    ("ppo", ["algo.learning_rate=lin_abc"], r"'abc' after lin_ is not a number > 0"),
+    ("ppo", ["algo.learning_rate=-1"], r"algo.learning_rate = -1: expected a finite number > 0"),
+    ("ppo", ["env.histroy=2"], r"'env.histroy' is not a known environment option .*did you "
+                               r"mean 'history'"),
+    ("ppo", ["eval_everyy=256"], r"--set eval_everyy=256: 'eval_everyy' is not a known "
+                                 r"configuration entry \(did you mean 'eval_every'\?\)"),
+    ("ppo", ["learning_rate=1e-4"], r"did you mean 'algo.learning_rate'"),
+    ("ppo", ["algo.seed=3"], r"algo.seed is --seed"),
+    ("ppo", ["env.control_period_s=abc"], r"--set env.control_period_s=abc: env: "
+                                          r"control_period_s = 'abc' is invalid"),
+    ("ppo", ["validation.episodes=0"], r"validation.episodes = 0: expected an integer"),
+    ("ppo", ["validation.seed=999999"], r"--set validation.seed=999999: validation seeds "
+                                        r"999999..1001022 must lie in \[0, 1000000\)"),
+    ("ppo", ["policy_kwargs.net_arch=[100000]"], r"policy_kwargs.net_arch = \[100000\]: expected "
+                                                 r"a list of layer widths"),
+    ("ppo", ["policy_kwargs.activation_fn=relu"], r"policy_kwargs.activation_fn is a class"),
+    ("ppo", ["decision.rules={quantile: [0.2, 2]}"], r"decision.rules: quantile value 2: "
+                                                     r"expected a probability in \(0, 1\]"),
+    ("ppo", ["decision.rules={advantage: [0.1]}"], r"rule 'advantage' is not one of"),
+    ("ppo", ["decision.rule=quantile"], r"decision has rules and rule/grid"),
+    ("ppo", ["algo.n_steps=1.5"], r"algo.n_steps = 1.5: expected an integer >= 1 \(1.5 is "
+                                  r"not a whole number\)"),
+    ("ppo", ["algo.gamma=true"], r"algo.gamma = True: expected a finite number in \[0, 1\] "
+                                 r"\(true/false is not a number\)"),
+    ("dqn", ["privileged_critic=true"], r"privileged_critic: true needs an actor-critic"),
+    ("dqn", ["algo.train_freq=[4, epoch]"], r"algo.train_freq = \[4, 'epoch'\]"),
+    ("esac", ["fit.hidden=[100000]"], r"fit.hidden = \[100000\]"),
+    ("esac", ["fit.delay_input=false"], r"rule_grid.lookahead has 1, but the lookahead needs a "
+                                        r"predictor trained with fit.delay_input"),
+    ("esac", ["rule_grid.margin=[.nan]"], r"rule_grid.margin = \[nan\]: expected a list of "
+                                          r"values; item 0 \(nan\) is not the accepted"),
+    ("esac", ["env.time_limit_s=6"], r"'env.time_limit_s' is not a known ESAC environment "
+                                     r"option"),
+    ("esac", ["rule_grid.time_demand_s=[1.0]"], r"rule_grid.time_demand_s is not tuned"),
+    ("esac", ["budget=quick"], r"--set budget=quick: budget is set by train.py \(give --budget\)"),
+])
+def test_config_errors_are_refused_before_anything_is_written(tmp_path, nothing_runs, algo,
+                                                              overrides, match):
+    d = tmp_path / "run"
+    with pytest.raises(train.ConfigError, match=match):
+        train.train(algo, d, timesteps=256, seed=1, progress=False, overrides=overrides)
+    assert not d.exists()
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--timesteps", "0"], r"--timesteps: timesteps = 0: expected an integer from 1 to "
+                           r"1,000,000,000,000"),
+    (["--timesteps", "-5"], r"--timesteps: timesteps = -5: expected an integer from 1"),
+    (["--preset", "Randomized"], r"--preset: preset = 'Randomized': expected one of .*did you "
+                                 r"mean 'randomized'"),
+    (["--budget", "quik"], r"has no budget 'quik' \(did you mean 'quick'\?\)"),
+    (["--config", "/nonexistent.yaml"], r"--config /nonexistent.yaml cannot be read: No such "
+                                        r"file"),
+    (["--set", "algo.n_stepz=64"], r"did you mean 'n_steps'"),
+    (["--set", "algo.learning_rate=[1"], r"--set 'algo.learning_rate=\[1': the value '\[1' is "
+                                         r"not valid YAML"),
+    (["--set", "algo..x=1"], r"has an empty part"),
+    (["--out", ""], r"run folder \(--out\) is empty"),
+])
+def test_cli_config_errors_exit_2_with_the_message(tmp_path, nothing_runs, capsys, argv, match):
+    import re
+
+    argv = ["--algo", "ppo", "--out", str(tmp_path / "run"), *argv]
+    with pytest.raises(SystemExit) as exc:
+        train.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert re.search(match, err), err
+    assert "Traceback" not in err and not (tmp_path / "run").exists()
+
+
+def test_config_files_broken_or_with_yaml_1_1_numbers(tmp_path, nothing_runs):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("default: [1, 2\n")
+    with pytest.raises(train.ConfigError, match=r"broken.yaml: not valid YAML: .*line"):
+        train.train("ppo", tmp_path / "a", config=broken, progress=False)
+    evil = tmp_path / "evil.yaml"
+    evil.write_text(f'default: !!python/object/apply:os.system ["touch {tmp_path}/ran"]\n')
+    with pytest.raises(train.ConfigError, match=r"evil.yaml: plain YAML only"):
+        train.train("ppo", tmp_path / "a", config=evil, progress=False)
+    assert not (tmp_path / "ran").exists()
+    # a YAML 1.1 reader takes 1e-4 for text: the likely mistake is named
+    text = (train.CONFIG_DIR / "ppo.yaml").read_text().replace("learning_rate: 3.0e-4",
+                                                                "learning_rate: 1e-4")
+    yaml11 = tmp_path / "ppo.yaml"
+    yaml11.write_text(text)
+    with pytest.raises(train.ConfigError, match=r"ppo.yaml: algo.learning_rate = '1e-4': "
+                                                r".*YAML 1.1 reads 1e-4 as text"):
+        train.train("ppo", tmp_path / "a", config=yaml11, progress=False)
+    # a key the code needs, missing
+    no_val = tmp_path / "noval.yaml"
+    no_val.write_text((train.CONFIG_DIR / "dqn.yaml").read_text().replace(
+        "  validation:\n    episodes: 48\n    seed: 900000\n", ""))
+    with pytest.raises(train.ConfigError, match=r"noval.yaml: validation is missing"):
+        train.train("dqn", tmp_path / "a", config=no_val, progress=False)
+    assert not (tmp_path / "a").exists()
+
+
+def test_every_shipped_config_passes_the_check():
+    for algo in train.ALGOS:
+        for budget in ("default", "quick"):
+            train.load_config(algo, budget, seed=0)
+    cfg = train.load_config("ppo", overrides=["timesteps=1e5", "algo.n_steps=512.0"])
+    assert cfg["timesteps"] == 100_000 and isinstance(cfg["algo"]["n_steps"], int)
+
+
+def test_resume_refuses_a_seed_outside_the_training_range(runs, tmp_path, capsys):
+    d = tmp_path / "ppo"
+    shutil.copytree(runs["ppo"], d)
+    run = json.loads((d / "run.json").read_text())
+    for bad, match in ((1_000_000, r"records seed 1000000: training seed 1000000 must lie in "
+                                   r"\[0, 1000000\)"),
+                       (-3, r"records seed -3: .*never negative"),
+                       (None, r"records no training seed")):
+        (d / "run.json").write_text(json.dumps({**run, "seed": bad}))
+        with pytest.raises(ValueError, match=match):
+            train.train("ppo", d, timesteps=1024, seed=1, resume=True, progress=False,
+                        overrides=_small("ppo", tmp_path))
+        assert json.loads((d / "run.json").read_text())["seed"] == bad  # untouched
+    (d / "run.json").write_text(json.dumps({**run, "seed": 1_000_000}))
+    with pytest.raises(SystemExit):
+        train.main(["--algo", "ppo", "--out", str(d), "--resume", "--timesteps", "1024"])
+    assert "cannot be continued" in capsys.readouterr().err
+
+
+def test_force_refuses_a_run_json_train_py_did_not_write(tmp_path):
+    d = tmp_path / "run"
+    d.mkdir()
+    (d / "run.json").write_text(json.dumps({"algo": "sac", "status": "finished"}))
+    (d / "model.zip").write_text("someone else's")
+    with pytest.raises(ValueError, match="records algo 'sac'.*not a train.py run; nothing in"):
+        train.train("ppo", d, timesteps=256, seed=1, force=True, progress=False)
+    assert (d / "model.zip").read_text() == "someone else's"
+
+
+def test_run_files_are_written_through_pneugym_outputs(runs, tmp_path, monkeypatch):
+    """run.json goes through pneugym.outputs' atomic writer (so it gets the umask's mode, like
+    the CSV and PNG files, not mkstemp's 0600)."""
+    import os
+
+    import pneugym.outputs as outputs
+
+    seen = []
+    real = outputs.atomic_write_text
+    monkeypatch.setattr(outputs, "atomic_write_text",
+                        lambda path, text: seen.append(Path(path).name) or real(path, text))
+    train.atomic_write_json(tmp_path / "run.json", {"a": np.float32(1.5)})
+    assert seen == ["run.json"]
+    assert json.loads((tmp_path / "run.json").read_text()) == {"a": 1.5}
+    mask = os.umask(0)
+    os.umask(mask)
+    for f in ("run.json", "progress.csv"):
+        assert (runs["ppo"] / f).stat().st_mode & 0o777 == 0o666 & ~mask, f

@@ -58,7 +58,7 @@ def test_make_vec_returns_the_batched_env():
         CutOffVectorEnv(num_envs=0)
     with pytest.raises(ValueError, match="histroy"):
         CutOffVectorEnv(num_envs=2, histroy=2)
-    with pytest.raises(ValueError, match="seed list"):
+    with pytest.raises(ValueError, match="list of 2 such seeds"):
         CutOffVectorEnv(num_envs=2).reset(seed=[1, 2, 3])
     with pytest.raises(ValueError, match="conditions"):
         CutOffVectorEnv(num_envs=2).reset(options={"conditions": [Conditions()]})
@@ -324,3 +324,62 @@ def test_vector_actions_as_a_list_of_ints_are_taken():
 def test_vector_reset_options_are_checked(options, msg):
     with pytest.raises(ValueError, match=msg):
         CutOffVectorEnv(num_envs=2).reset(seed=0, options=options)
+
+
+@pytest.mark.parametrize("seed", [1.5, {}, "a", -1, True])
+def test_vector_reset_refuses_bad_seeds(seed):
+    with pytest.raises(ValueError, match="seed = "):
+        CutOffVectorEnv(num_envs=2).reset(seed=seed)
+
+
+def test_vector_reset_takes_numpy_integer_seeds():
+    a, _ = CutOffVectorEnv(num_envs=2, preset="randomized").reset(seed=np.int64(5))
+    b, _ = CutOffVectorEnv(num_envs=2, preset="randomized").reset(seed=5)
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("kw,msg", [
+    ({"max_episode_steps": "10"}, "max_episode_steps"), ({"max_episode_steps": -1}, "max_episode_steps"),
+    ({"max_episode_steps": 0.5}, "max_episode_steps"), ({"autoreset": "no"}, "autoreset"),
+    ({"observe_params": "no"}, "observe_params"), ({"reversible": "False"}, "reversible"),
+    ({"history": 10**9}, "history"), ({"control_period_s": 5.0}, "control_period_s.*ms given as s"),
+    ({"decision_window_s": 20.0}, "decision_window_s.*ms given as s"),
+    ({"conditions": {"load_mass_kg": "15"}}, "load_mass_kg must be a number"),
+    ({"conditions": {"dip_probability": None}}, "dip_probability"),
+    ({"conditions": {"dip_probability": "0.5"}}, "dip_probability"),
+])
+def test_options_that_would_be_guessed_are_refused(kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        CutOffVectorEnv(num_envs=1, **kw)
+
+
+def test_numpy_numbers_are_good_options():
+    env = CutOffVectorEnv(num_envs=1, control_period_s=np.float32(0.005),
+                          conditions={"load_mass_kg": np.float32(12.0)}, reversible=np.bool_(False))
+    assert env.space.load_mass_kg == (12.0, 12.0) and env.control_period_s == pytest.approx(0.005)
+
+
+def test_sb3_adapter_calls_the_batched_env_once_and_refuses_partial_indices():
+    venv = CutOffVecEnv(num_envs=3)
+    venv.reset()
+    with pytest.raises(ValueError, match="one batched env"):
+        venv.env_method("step", np.zeros(3, dtype=np.int64), indices=[0, 1])
+    with pytest.raises(ValueError, match="one batched env"):
+        venv.set_attr("w_time", 1.0, indices=0)
+    t0 = venv.unwrapped._batch_info()["time_s"].copy()
+    out = venv.env_method("step", np.zeros(3, dtype=np.int64))
+    assert len(out) == 3 and out[0] is out[1]
+    assert np.allclose(venv.unwrapped._batch_info()["time_s"], t0 + 0.005)  # stepped once
+    with pytest.raises(ValueError, match="seed"):
+        venv.seed("a")
+
+
+def test_sb3_adapter_takes_per_environment_conditions():
+    venv = CutOffVecEnv(num_envs=2)
+    c = [Conditions(load_mass_kg=5.0), Conditions(load_mass_kg=20.0)]
+    venv.set_options([{"conditions": c[0]}, {"conditions": c[1]}])
+    venv.reset()
+    assert list(venv.unwrapped.conditions) == c
+    venv.set_options([{"conditions": c[0]}, {"other": 1}])
+    with pytest.raises(ValueError, match="per-environment reset options"):
+        venv.reset()

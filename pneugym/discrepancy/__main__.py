@@ -3,8 +3,10 @@
 A PATH is a run (``NAME.csv``, ``NAME.json`` or the stem ``NAME``) or a folder of runs. Writes
 ``report.json``, ``report.md``, ``updated_model.json`` and PNG plots into ``DIR`` (as a set:
 an earlier report there is replaced only once all are written) and prints the decision. Exit
-status 0 on success, 2 when ``DIR`` cannot be a writable folder (checked before anything else)
-or a run is refused (the message names the file, row or key and the reason).
+status 0 on success, 2 when ``DIR`` is empty or cannot be a writable folder (checked before
+anything else), a run is refused (the message names the file, row or key and the reason) or the
+plant cannot simulate a run (a ``SimulationError`` or ``ValueError`` naming the run): never a
+traceback for bad input.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import time
 
 from ..data import MeasurementFormatError
 from ..outputs import OutputError, check_output_dir
+from ..plant import SimulationError
 from .candidates import CANDIDATES
 from .prepare import MAX_SAMPLES
 from .workflow import Discrepancy
@@ -50,8 +53,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     t0 = time.perf_counter()
+    if not a.out.strip():  # Path("") is the current folder: never write there by accident
+        print(f"error: --out {a.out!r} is empty: give a folder path for the report (an empty "
+              f"path would write into the current folder)", file=sys.stderr)
+        return 2
     try:
-        out = check_output_dir(a.out, "--out folder")  # before the (long) fit, not after it
+        # the string as given (check_output_dir refuses "" too): before the (long) fit
+        out = check_output_dir(a.out, "--out folder")
     except OutputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -69,13 +77,22 @@ def main(argv: list[str] | None = None) -> int:
         # the workflow reads the runs itself: a long run's full arrays are dropped as soon as
         # it has been cut to its informative window
         d.fit(a.paths)
-    except (MeasurementFormatError, ValueError) as exc:
+    except MeasurementFormatError as exc:  # names the file, row or key
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (SimulationError, ValueError) as exc:  # the plant or a rig, not a traceback
+        run_names = [r.name for r in getattr(d, "runs_", [])]
+        msg = str(exc)
+        if not any(f"run {n!r}" in msg for n in run_names):  # name the runs if it does not
+            msg = f"runs {', '.join(run_names) or ', '.join(a.paths)}: {msg}"
+        if isinstance(exc, SimulationError):
+            msg += " (the plant cannot simulate the run: check its JSON rig and valve column)"
+        print(f"error: {msg}", file=sys.stderr)
         return 2
     print(f"{len(d.runs_)} run(s): " + ", ".join(r.name for r in d.runs_), flush=True)
     try:
         path = d.report(out, plots=not a.no_plots)
-    except OSError as exc:  # e.g. the disk filled up: the old report is left as it was
+    except (OSError, ValueError) as exc:  # e.g. the disk filled up: the old report is left as it was
         print(d.summary())
         print(f"error: the report could not be written to {out}: {exc}", file=sys.stderr)
         return 2

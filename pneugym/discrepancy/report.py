@@ -50,6 +50,7 @@ def _clean(o: Any) -> Any:
 
 def report_dict(d: Discrepancy, updated_model_path: str | None = None) -> dict[str, Any]:
     """Everything the report says, as plain JSON-able data."""
+    from .workflow import reduction
     hold = {r.name for r in d.holdout_runs_}
     cal = d.gaps_["calibrated"]["all"]["overall"]
     runs = []
@@ -83,13 +84,15 @@ def report_dict(d: Discrepancy, updated_model_path: str | None = None) -> dict[s
         "gap_after": d.gap_after,
         "gap_reduction": d.gap_reduction,
         "gap_calibrated": cal,
-        "gap_reduction_vs_calibrated": 1.0 - d.gap_after / cal if cal > 0 else None,
+        "gap_reduction_vs_calibrated": reduction(cal, d.gap_after),
+        "no_gap": bool(getattr(d, "no_gap_", False)),
         "gaps": d.gaps_,
         "nrmse_definition": NRMSE_DEFINITION,
         "updated_model": updated_model_path,
         "holdout": sorted(hold),
         "runs": runs,
         "noise_sigma": d.sigma_,
+        "noise_at_floor": getattr(d, "noise_at_floor_", []),
         "failures": failures,
         "localisation": {m: [f.__dict__ for f in fs] for m, fs in d.findings_.items()},
         "separation": getattr(d, "separation_", None),
@@ -149,8 +152,12 @@ def markdown(rep: dict[str, Any]) -> str:
     L += ["## Gap (NRMSE)", "",
           (f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "
            f"runs' JSON) -> {rep['gap_calibrated']:.4g} (calibrated nominal) -> **{rep['gap_after']:.4g} "
-           f"after** (updated model): reduction **{rep['gap_reduction']:.1%}** "
-           f"({_pct(rep['gap_reduction_vs_calibrated'])} against the calibrated nominal model)."), "",
+           f"after** (updated model): " + (
+               "**no gap to reduce** (the nominal model reproduces the runs to round-off)."
+               if rep["gap_reduction"] is None else
+               f"reduction **{rep['gap_reduction']:.1%}** "
+               f"({_pct(rep['gap_reduction_vs_calibrated'])} against the calibrated nominal model).")),
+          "",
           f"NRMSE: {rep['nrmse_definition']}.", ""]
     chans = [c for c in CHANNELS if c in g["nominal"]["all"]]
     L += ["| model | runs | overall | " + " | ".join(chans) + " |",
@@ -172,8 +179,10 @@ def markdown(rep: dict[str, Any]) -> str:
         L += ["", ("Long runs were cut to the part that carries information before the fit "
                    "(everything in this report refers to the runs as cut):"), ""]
         L += [f"- {s}" for s in changed]
+    floor = set(rep.get("noise_at_floor", []))
     L += ["", "Noise levels estimated from quiet segments: "
-          + ", ".join(f"{c} {v:.3g} {UNITS[c]}" for c, v in rep["noise_sigma"].items()), ""]
+          + ", ".join(f"{c} {v:.3g} {UNITS[c]}" + (" (floor: no noise found)" if c in floor else "")
+                      for c, v in rep["noise_sigma"].items()), ""]
     L += ["## Where the calibrated nominal model fails", ""]
     if rep["failures"]:
         L += [f"- {s}" for s in rep["failures"][:12]]
@@ -193,9 +202,12 @@ def markdown(rep: dict[str, Any]) -> str:
                 a, b = loc["calibrated"].get((r["name"], c, p)), loc["updated"].get((r["name"], c, p))
                 cells.append("-" if a is None else f"{a:.1f} -> {b:.1f}")
             L.append(f"| {r['name']} | {c} | " + " | ".join(cells) + " |")
-    L += ["", "## Candidates (best first)", "",
-          "| candidate | passed | score | fit improvement | held-out improvement | F (p) | N_eff | parameters | why not |",
-          "|---|---|---|---|---|---|---|---|---|"]
+    if rep["candidates"]:
+        L += ["", "## Candidates (best first)", "",
+              "| candidate | passed | score | fit improvement | held-out improvement | F (p) | N_eff | parameters | why not |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    else:
+        L += ["", "## Candidates", "", "None fitted: there is no gap to reduce."]
     for c in rep["candidates"]:
         pars = ", ".join(f"{k} = {_fmt(v)} ± {_fmt(c['stderr'].get(k))}" for k, v in c["parameters"].items())
         L.append(f"| {c['name']} | {_fmt(c['passed'])} | {c['score']:+.3f} | {c['improvement_fit']:+.1%} | "
@@ -294,6 +306,9 @@ def write_plots(d: Discrepancy, out: Path) -> list[Path]:
     ax.set_xlabel("fraction of the calibrated model's SSR removed")
     ax.set_xlim(-0.25, 1.02)  # bars below -20 % are clipped there
     ax.set_title(f"candidates, ranked (named: {d.named_effect_})", fontsize=10)
+    if not cs:
+        ax.text(0.5, 0.5, "none fitted: no gap to reduce", ha="center", va="center",
+                transform=ax.transAxes)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     paths.append(_save(fig, out / "candidates.png"))

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..data import MeasuredRun
 from ..params import RigParams
-from ..plant import Plant
+from ..plant import Plant, SimulationError
 
 #: measured column -> recorded plant channel
 CHANNELS = {"x": "x", "p_drive": "p_drive_sensor", "p_exhaust": "p_exhaust_sensor",
@@ -44,17 +44,34 @@ def replay(run: MeasuredRun, params: RigParams) -> dict[str, np.ndarray]:
     The plant starts at ``t = 0`` (the extend command) from rest; samples before ``t = 0`` get
     the initial state. A block-averaged run (``run.block = k > 1``) gets the simulation at the
     original sampling averaged over the same blocks of ``k`` samples. Raises
-    :class:`pneugym.plant.SimulationError` if the plant fails."""
+    :class:`pneugym.plant.SimulationError` if the plant fails, ``ValueError`` if it refuses the
+    rig or the commands; either names the run."""
     k = int(run.block)
     dt = run.sample_dt_s / k
     t_end = max(float(run.t[-1]) + 0.5 * (k - 1) * dt, dt)
-    traj = Plant(params).run(t_end, run.schedule(), record_dt=dt)
+    try:
+        traj = Plant(params).run(t_end, run.schedule(), record_dt=dt)
+    except SimulationError as exc:
+        raise SimulationError(f"{run_label(run)}: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{run_label(run)}: {exc}") from exc
     ts = traj["t"]
     if k == 1:
         return {c: np.interp(run.t, ts, traj[CHANNELS[c]]) for c in channels_of(run)}
     fine = (run.t[:, None] + (np.arange(k) - 0.5 * (k - 1)) * dt).ravel()
     return {c: np.interp(fine, ts, traj[CHANNELS[c]]).reshape(-1, k).mean(axis=1)
             for c in channels_of(run)}
+
+
+def run_label(run: MeasuredRun) -> str:
+    """``run 'NAME' (path.csv)``: how errors name a run."""
+    src = f" ({run.source.with_name(run.source.name + '.csv')})" if run.source is not None else ""
+    return f"run {run.name!r}{src}"
+
+
+def noise_at_floor(sigma: Mapping[str, float]) -> list[str]:
+    """Channels whose estimated noise is at :data:`NOISE_FLOOR` (noise-free data)."""
+    return [c for c, v in sigma.items() if v <= NOISE_FLOOR[c]]
 
 
 @dataclass(frozen=True)
@@ -112,7 +129,8 @@ def estimate_noise(runs: Sequence[MeasuredRun], window: int = 25) -> dict[str, f
     Quiet segments are windows of ``window`` samples with the piston at rest (measured position
     within 0.2 mm); each window is detrended by a quadratic, and the channel's noise is the
     median of the windows' residual standard deviations (pooled over the runs). A channel
-    never quieter than :data:`NOISE_FLOOR` gets the floor."""
+    quieter than :data:`NOISE_FLOOR` (noise-free, e.g. simulated, data) gets the floor, so the
+    residuals in noise units never divide by zero; :func:`noise_at_floor` lists those channels."""
     chans = sorted({c for r in runs for c in channels_of(r)}, key=list(CHANNELS).index)
     k = np.arange(window) - (window - 1) / 2.0
     B = np.stack([np.ones(window), k, k * k], axis=1)
@@ -182,7 +200,7 @@ def localise(runs: Sequence[MeasuredRun], sims: Sequence[Mapping[str, np.ndarray
     """Residual statistics per run, phase and channel, worst (largest RMS in sigma) first."""
     out = []
     for r, s, ph in zip(runs, sims, phases):
-        for c in s:
+        for c in (c for c in s if c in CHANNELS):  # not "t" of Discrepancy.predict
             z = (getattr(r, c) - s[c]) / sigma[c]
             for p in PHASES:
                 m = ph.mask(p)

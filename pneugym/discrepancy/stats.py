@@ -50,19 +50,25 @@ def inflation(segments: Sequence[np.ndarray]) -> tuple[float, float]:
 def f_test(ssr0: float, ssr1: float, p_extra: int, p_total: int, n_eff: float) -> tuple[float, float]:
     """Nested-model F-test with an effective sample size: ``F = (SSR0 - SSR1)/p / (SSR1/(N_eff - P))``.
 
-    Returns ``(F, p_value)``; a worse or equal fit gives ``(0, 1)``."""
+    Returns ``(F, p_value)``; a worse or equal fit gives ``(0, 1)``, an exact fit of a misfit
+    (``SSR1 = 0 < SSR0``: noise-free data) ``(inf, 0)``."""
     dof = max(n_eff - p_total, 1.0)
-    if ssr1 <= 0 or ssr0 <= ssr1:
+    if ssr0 <= ssr1:
         return 0.0, 1.0
+    if ssr1 <= 0:
+        return float("inf"), 0.0
     F = (ssr0 - ssr1) / p_extra / (ssr1 / dof)
     return float(F), float(stats.f.sf(F, p_extra, dof))
 
 
 def lr_test(ssr0: float, ssr1: float, n_eff: float, dof: int = 1) -> tuple[float, float]:
     """Likelihood-ratio statistic ``N_eff ln(SSR0 / SSR1)`` for two fixed predictions of the same
-    data (e.g. a held-out run) and its chi-square p-value with ``dof`` degrees of freedom."""
-    if ssr1 <= 0 or ssr0 <= ssr1:
+    data (e.g. a held-out run) and its chi-square p-value with ``dof`` degrees of freedom; an
+    exact prediction of a misfit (``SSR1 = 0 < SSR0``) gives ``(inf, 0)``."""
+    if ssr0 <= ssr1:
         return 0.0, 1.0
+    if ssr1 <= 0:
+        return float("inf"), 0.0
     s = n_eff * float(np.log(ssr0 / ssr1))
     return s, float(stats.chi2.sf(s, dof))
 

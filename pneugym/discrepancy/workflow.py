@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 from scipy import stats as sps
 
-from ..data import MeasuredRun, read_runs
-from ..outputs import check_output_dir
+from ..data import MeasuredRun, MeasurementFormatError, read_runs
+from ..outputs import OutputError, check_output_dir
 from ..params import RigParams
 from ..plant import SimulationError
 from .candidates import (
@@ -45,7 +45,17 @@ from .candidates import (
 )
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
 from .prepare import MAX_SAMPLES, prepare
-from .residuals import RunPhases, estimate_noise, localise, nrmse, replay, run_phases
+from .residuals import (
+    NOISE_FLOOR,
+    RunPhases,
+    estimate_noise,
+    localise,
+    noise_at_floor,
+    nrmse,
+    replay,
+    run_label,
+    run_phases,
+)
 from .stats import f_test, inflation, lr_test, standard_errors
 
 MODELS = ("nominal", "calibrated", "updated")
@@ -54,6 +64,23 @@ NO_HOLDOUT_WARNING = (
     "not tested on a held-out run: with a single run (or holdout none) every run is fitted, so "
     "the result is fitted, not validated; measure another run (e.g. another cut-off time) and "
     "hold one out")
+#: an overall NRMSE at or below this is no gap: the model reproduces the runs to round-off
+#: (noise-free data simulated with the rig the JSON states); no gap reduction is computed
+NO_GAP = 1e-9
+
+
+def noise_floor_warning(channels: Sequence[str]) -> str:
+    """The warning for channels whose noise estimate is at :data:`NOISE_FLOOR`."""
+    floors = ", ".join(f"{c} {NOISE_FLOOR[c]:g}" for c in channels)
+    return (f"the runs look noise-free in {', '.join(channels)}: no noise was found in the quiet "
+            f"segments, so the residuals are in units of a floor ({floors}) instead of the "
+            f"measured noise; their sizes in sigma and the significance tests are not meaningful "
+            f"(simulated data without noise, or a coarsely quantised sensor?)")
+
+
+def reduction(before: float, after: float) -> float | None:
+    """``1 - after / before``, or ``None`` when ``before`` is no gap (<= :data:`NO_GAP`)."""
+    return None if not before > NO_GAP else 1.0 - after / before
 
 
 @dataclass
@@ -187,17 +214,24 @@ class Discrepancy:
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
         # use the rigs as the plant builds them (automatic substep)
-        self._fixed = [fixed_step(g, nom[0].hi) for g in self.rigs_]
+        self._fixed = [_for_run(r, fixed_step, g, nom[0].hi) for r, g in zip(runs, self.rigs_)]
         fit_idx = [i for i, r in enumerate(runs) if r.name != hold]
         fit_bases = [self._fixed[i] for i in fit_idx]
         rng = np.random.default_rng(self.seed)
         executor = Executor(self.n_jobs)
         total = self.n_starts * (1 + len(self.candidates))
         bar = _progress(total, self.progress)
+        results: list[CandidateResult] = []
         try:
             # (1) nominal replay, (2) calibration of the nominal parameters
             self.sims_ = {"nominal": [replay(r, g) for r, g in zip(runs, self.rigs_)]}
             json_vals = np.array([read(fit_bases[0], p.path) for p in nom])
+            self.no_gap_ = not self._gaps(self.sims_["nominal"])["all"]["overall"] > NO_GAP
+            if self.no_gap_:
+                # the JSON's model reproduces every run to round-off: nothing to calibrate,
+                # no effect to look for (a fit could only chase the fixed substep's round-off)
+                self._no_gap(runs, nom, json_vals)
+                return self._finish(runs, nom, json_vals, t0)
             prob = Problem(self.fit_runs_, fit_bases, self.sigma_, nom)
             starts = self._starts(prob, [json_vals], [nom], rng)
             bar.set_description("calibrating nominal parameters")
@@ -230,8 +264,24 @@ class Discrepancy:
             bar.close()
         # (5) decision
         self.candidates_ = sorted(results, key=lambda c: -c.score)
+        return self._finish(runs, nom, cal_vals, t0)
+
+    def _no_gap(self, runs: list[MeasuredRun], nom: tuple[FitParam, ...], json_vals: np.ndarray) -> None:
+        """No gap: the calibrated model is the nominal one, no candidate is fitted."""
+        fit = {r.name for r in self.fit_runs_}
+        ssr = sum(float(np.sum(((getattr(r, c) - s[c]) / self.sigma_[c]) ** 2))
+                  for r, s in zip(runs, self.sims_["nominal"]) if r.name in fit for c in s)
+        u = np.array([q.to_u(v) for q, v in zip(nom, json_vals)])
+        self.calibrated_ = FitResult(nom, json_vals.copy(), u, ssr, np.zeros((0, len(nom))), 0, [])
+        self.sims_["calibrated"] = self.sims_["nominal"]
+        self.findings_ = {m: localise(runs, self.sims_["nominal"], self.phases_, self.sigma_)
+                          for m in ("nominal", "calibrated")}
+        self.candidates_ = []
+
+    def _finish(self, runs: list[MeasuredRun], nom: tuple[FitParam, ...], cal_vals: np.ndarray,
+                t0: float) -> Discrepancy:
+        """(5) decision, (6) updated model, (7) gaps, warnings."""
         self._decide()
-        # (6) updated model, (7) gaps
         if self.named_effect_ in [c.name for c in self.candidates]:
             best = next(c for c in self.candidates_ if c.name == self.named_effect_)
             cand = next(c for c in self.candidates if c.name == self.named_effect_)
@@ -241,11 +291,18 @@ class Discrepancy:
             params, vals = nom, cal_vals
         self.fitted_params_ = {p.path: float(v) for p, v in zip(params, vals)}
         self._fitted = (tuple(params), vals)
-        self.updated_rigs_ = [apply(g, params, vals) for g in self.rigs_]
-        self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
+        if self.no_gap_:  # every run keeps the rig its JSON states
+            self.updated_rigs_ = list(self.rigs_)
+            self.sims_["updated"] = self.sims_["nominal"]
+        else:
+            self.updated_rigs_ = [_for_run(r, apply, g, params, vals) for r, g in zip(runs, self.rigs_)]
+            self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
         self.gaps_ = {m: self._gaps(self.sims_[m]) for m in MODELS}
         self.findings_["updated"] = localise(runs, self.sims_["updated"], self.phases_, self.sigma_)
+        self.noise_at_floor_ = noise_at_floor(self.sigma_)
         self.warnings_ = [] if self.holdout_runs_ else [NO_HOLDOUT_WARNING]
+        if self.noise_at_floor_:
+            self.warnings_.append(noise_floor_warning(self.noise_at_floor_))
         self.wall_time_s_ = time.perf_counter() - t0
         return self
 
@@ -321,12 +378,12 @@ class Discrepancy:
             tol = 1e-3 * (hi - lo)
             on_lo, on_hi = u - lo <= tol, hi - u <= tol
             if q.null is not None:
-                z[q.name] = float(abs(val - q.null) / se) if se > 0 else float("inf")
+                z[q.name] = z_score(val, q.null, se)
                 if on_hi or (on_lo and q.lo != q.null):
                     at_bound.append(q.name)
             elif on_lo or on_hi:
                 at_bound.append(q.name)
-        improvement_fit = 1.0 - ssr1 / ssr0 if ssr0 > 0 else 0.0
+        improvement_fit = 1.0 - ssr1 / ssr0 if ssr0 > 0 else 0.0  # no misfit: nothing removed
         sig_level = self.alpha / len(self.candidates)
         checks: dict[str, bool | None] = {
             "significant": pval < sig_level,
@@ -376,6 +433,14 @@ class Discrepancy:
         untested = any(c.checks.get("improves_holdout", False) is None for c in self.candidates_)
         note = (" - not tested on a held-out run (a single run, or holdout none): fitted, not "
                 "validated") if untested else ""
+        if getattr(self, "no_gap_", False):
+            self.named_effect_ = "none"
+            self.decision_ = (f"none: no gap to reduce - the nominal model as the runs' JSON state "
+                              f"it reproduces every run to round-off (overall NRMSE "
+                              f"{self._gaps(self.sims_['nominal'])['all']['overall']:.3g} <= "
+                              f"{NO_GAP:g}), so nothing was calibrated and no candidate was "
+                              f"fitted; the model is kept as the JSON states it")
+            return
         if not passed:
             self.named_effect_ = "none"
             self.decision_ = ("none: no candidate passes every check; the calibrated nominal model "
@@ -387,7 +452,10 @@ class Discrepancy:
             ssr_a = a.ssr_fit + (a.ssr_holdout or 0.0)
             ssr_b = b.ssr_fit + (b.ssr_holdout or 0.0)
             n_eff = a.n_eff + (a.n_eff_holdout or 0.0)
-            stat = n_eff * float(np.log(ssr_b / ssr_a)) if ssr_a > 0 else 0.0
+            if ssr_a > 0:
+                stat = n_eff * float(np.log(ssr_b / ssr_a))
+            else:  # a fits exactly: separated from b unless b does too
+                stat = float("inf") if ssr_b > 0 else 0.0
             p = float(sps.chi2.sf(stat, 1))
             self.separation_ = {"best": a.name, "runner_up": b.name, "statistic": stat, "p_value": p}
             if p >= self.alpha:
@@ -429,9 +497,10 @@ class Discrepancy:
         return self.gaps_["updated"]["all"]["overall"]
 
     @property
-    def gap_reduction(self) -> float:
-        """``1 - gap_after / gap_before``."""
-        return 1.0 - self.gap_after / self.gap_before
+    def gap_reduction(self) -> float | None:
+        """``1 - gap_after / gap_before``; ``None`` when there is no gap to reduce
+        (``gap_before`` <= :data:`NO_GAP`: the nominal model reproduces the runs to round-off)."""
+        return reduction(self.gap_before, self.gap_after)
 
     @property
     def updated_model(self) -> RigParams:
@@ -443,13 +512,30 @@ class Discrepancy:
         params, vals = self._fitted
         return apply(run.rig(base), params, vals)
 
-    def predict(self, run: MeasuredRun) -> dict[str, np.ndarray]:
-        """Channels the updated model predicts for ``run`` (its valve command replayed)."""
-        return replay(run, self.updated_rig(run))
+    def prepared(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> list[MeasuredRun]:
+        """``runs`` cut to their informative window and block-averaged as :meth:`fit` does
+        (same ``max_samples``; :mod:`pneugym.discrepancy.prepare`): what :meth:`predict` and
+        :meth:`score` simulate. Runs up to 20 s and ``max_samples`` come back as they are."""
+        runs = list(runs)
+        return prepare(runs, [r.rig(base) for r in runs], self.max_samples)[0]
 
-    def score(self, runs: Sequence[MeasuredRun]) -> float:
-        """Overall NRMSE of the updated model on ``runs`` (lower is better)."""
-        return nrmse(runs, [self.predict(r) for r in runs])["overall"]
+    def predict(self, run: MeasuredRun, base: RigParams | None = None) -> dict[str, np.ndarray]:
+        """Channels the updated model predicts for ``run`` (its valve command replayed).
+
+        Bounded like :meth:`fit`: a long run is first cut and block-averaged
+        (:meth:`prepared`), so an hour-long run is not simulated for an hour. The channels are
+        at the times under ``"t"``: the run's own sample times for a run up to 20 s and
+        ``max_samples`` samples, else those of the prepared run."""
+        (p,) = self.prepared([run], base)
+        out = replay(p, self.updated_rig(p, base))
+        out["t"] = p.t.copy()
+        return out
+
+    def score(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> float:
+        """Overall NRMSE of the updated model on ``runs`` (lower is better), on the runs as
+        :meth:`prepared` cuts them (the same windows and averaging as the fit's gaps)."""
+        prepared = self.prepared(runs, base)
+        return nrmse(prepared, [replay(p, self.updated_rig(p, base)) for p in prepared])["overall"]
 
     @property
     def held_out_tested(self) -> bool:
@@ -462,6 +548,9 @@ class Discrepancy:
         Raises :class:`pneugym.outputs.OutputError` (a ``ValueError``) naming ``out`` if it
         cannot be a writable folder; returns the path of ``report.json``."""
         from .report import write_report
+        if isinstance(out, str) and not out.strip():
+            raise OutputError(f"report folder {out!r} is empty: give a folder path (an empty "
+                              f"path would write into the current folder)")
         check_output_dir(out, "report folder")
         return write_report(self, out, plots=plots)
 
@@ -471,8 +560,10 @@ class Discrepancy:
         lines = [f"WARNING: {w}" for w in getattr(self, "warnings_", [])]
         lines += [f"named effect: {self.named_effect_}", f"  {self.decision_}",
                   (f"gap (overall NRMSE, all runs): {self.gap_before:.4g} -> {self.gap_after:.4g} "
-                   f"({self.gap_reduction:+.1%} reduction)"),
-                  "candidates (best first):"]
+                   + ("(no gap to reduce)" if self.gap_reduction is None else
+                      f"({self.gap_reduction:+.1%} reduction)")),
+                  "candidates (best first):" if self.candidates_ else
+                  "candidates: none fitted (no gap to reduce)"]
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
@@ -484,13 +575,36 @@ class Discrepancy:
             lines.append("long runs, cut to what carries information:")
             lines += [f"  {s}" for s in changed]
         worst = self.findings_["calibrated"][:3]
-        if worst:
+        if getattr(self, "no_gap_", False):
+            lines.append("residuals: none (the nominal model reproduces the runs to round-off)")
+        elif worst:
             lines.append("worst residuals of the calibrated nominal model:")
             lines += [f"  {f.sentence()}" for f in worst]
         return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.summary()
+
+
+def _for_run(run: MeasuredRun, fn, *args):
+    """``fn(*args)``, a ``SimulationError`` or ``ValueError`` re-raised naming ``run``."""
+    try:
+        return fn(*args)
+    except MeasurementFormatError:
+        raise  # names the file already
+    except SimulationError as exc:
+        raise SimulationError(f"{run_label(run)}: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{run_label(run)}: {exc}") from exc
+
+
+def z_score(value: float, null: float, se: float) -> float:
+    """``|value - null| / se``; with ``se = 0`` (an exact fit) infinite unless ``value`` is the
+    null itself (then 0: an effect fitted to nothing is not away from its null)."""
+    d = abs(float(value) - float(null))
+    if se > 0:
+        return d / float(se)
+    return float("inf") if d > 0 else 0.0
 
 
 def _ssr(segs: Sequence[np.ndarray]) -> float:

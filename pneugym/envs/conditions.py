@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
@@ -78,15 +79,21 @@ class Conditions:
 Range = tuple[float, float]
 
 
+def _number(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
 def _as_range(name: str, value: Any) -> Range:
-    if isinstance(value, (int, float)):
+    """A number (fixed) or a ``(low, high)`` pair of numbers; strings are refused, never read
+    character by character."""
+    if _number(value):
         lo = hi = float(value)
+    elif isinstance(value, (tuple, list, np.ndarray)) and len(value) == 2 \
+            and all(_number(v) for v in value):
+        lo, hi = (float(v) for v in value)
     else:
-        try:
-            lo, hi = (float(v) for v in value)
-        except (TypeError, ValueError):
-            raise ValueError(f"ConditionSpace.{name} must be a number or a (low, high) pair; "
-                             f"got {value!r}") from None
+        raise ValueError(f"ConditionSpace.{name} must be a number or a (low, high) pair of "
+                         f"numbers; got {value!r}")
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise ValueError(f"ConditionSpace.{name} = {value!r}: need finite low <= high")
     return lo, hi
@@ -114,7 +121,7 @@ class ConditionSpace:
     def __post_init__(self) -> None:
         for f in fields(self):
             if f.name == "dip_probability":
-                if not 0.0 <= self.dip_probability <= 1.0:
+                if not (_number(self.dip_probability) and 0.0 <= self.dip_probability <= 1.0):
                     raise ValueError(f"ConditionSpace.dip_probability = {self.dip_probability!r} "
                                      f"must be in [0, 1]")
                 continue

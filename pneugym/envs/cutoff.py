@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -94,6 +95,19 @@ OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
 
 RESET_OPTIONS = ("conditions",)
+MAX_HISTORY = 1000  # samples per observation (5 s at 5 ms)
+_MAX_OPTION_HINT = {"control_period_s": (1.0, "ms given as s? (5 ms = 0.005 s)"),
+                    "decision_window_s": (10.0, "ms given as s? (20 ms = 0.02 s)"),
+                    "time_limit_s": (3600.0, "a stroke takes seconds"),
+                    "sensor_lag_s": (1.0, "ms given as s? (15 ms = 0.015 s)")}
+_MAX_OPTION = {k: v[0] for k, v in _MAX_OPTION_HINT.items()}
+
+
+def check_flag(name: str, value: Any) -> bool:
+    """A yes/no option: a bool (numpy's too), never a string or a number read as truthy."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} = {value!r} is invalid: must be True or False")
+    return bool(value)
 
 
 def check_action(action: Any) -> int:
@@ -182,12 +196,19 @@ class _CutOffCore:
                   "decision_window_s": decision_window_s, "w_time": w_time, "w_stall": w_stall,
                   "w_stick": w_stick, "sensor_lag_s": sensor_lag_s}
         for name, val in values.items():
-            ok = isinstance(val, (int, float)) and not isinstance(val, bool) and math.isfinite(val)
+            ok = isinstance(val, numbers.Real) and not isinstance(val, (bool, np.bool_)) \
+                and math.isfinite(val)
             if not ok or val < 0 or (val == 0 and name in ("control_period_s", "time_limit_s")):
                 raise ValueError(f"{name} = {val!r} is invalid (a finite number >= 0; > 0 for "
                                  f"control_period_s and time_limit_s)")
-        if not (isinstance(history, (int, np.integer)) and history >= 1):
-            raise ValueError(f"history = {history!r} must be an integer >= 1")
+            if val > _MAX_OPTION.get(name, math.inf):
+                hi, hint = _MAX_OPTION_HINT[name]
+                raise ValueError(f"{name} = {val!r} is not plausible (at most {hi:g} s): {hint}")
+        if not (isinstance(history, (int, np.integer)) and not isinstance(history, bool)
+                and 1 <= history <= MAX_HISTORY):
+            raise ValueError(f"history = {history!r} must be an integer in [1, {MAX_HISTORY}]")
+        for name, val in (("reversible", reversible), ("observe_params", observe_params)):
+            check_flag(name, val)
         if reward_mode not in ("dense", "sparse"):
             raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
         self.space: ConditionSpace = resolve(preset, conditions)
@@ -452,10 +473,15 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
         self.config = {**_DEFAULTS, **config}
+        if max_episode_steps is not None and not (
+                isinstance(max_episode_steps, (int, np.integer)) and not isinstance(
+                    max_episode_steps, bool) and max_episode_steps >= 1):
+            raise ValueError(f"max_episode_steps = {max_episode_steps!r} must be None or an "
+                             f"integer >= 1")
         self.num_envs = int(num_envs)
         self._configure(self.num_envs, **self.config)
-        self.max_episode_steps = max_episode_steps
-        self.autoreset = bool(autoreset)
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.autoreset = check_flag("autoreset", autoreset)
         if not self.autoreset:
             self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.DISABLED}
         self.render_mode = None
@@ -470,16 +496,9 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
 
     def reset(self, *, seed: int | list[int] | None = None,
               options: Mapping[str, Any] | None = None):
-        super().reset(seed=seed if isinstance(seed, (int, type(None))) else seed[0])
         n = self.num_envs
-        if seed is None:
-            seeds: list[int | None] = [None] * n
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != n:
-                raise ValueError(f"seed list has {len(seeds)} entries for {n} environments")
+        seeds = _seeds(seed, n)
+        super().reset(seed=seeds[0])
         conds = check_options(options).get("conditions")
         if conds is not None:
             if isinstance(conds, (Conditions, Mapping, str)) or not hasattr(conds, "__len__") \
@@ -576,6 +595,21 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         for k in list(info):
             info["_" + k] = mask
         return info
+
+
+def _seed_ok(s: Any) -> bool:
+    return s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0)
+
+
+def _seeds(seed: Any, n: int) -> list[int | None]:
+    """One seed per sub-environment: ``seed + i`` from one integer, or a list of ``n`` (each an
+    integer >= 0 or None)."""
+    if _seed_ok(seed):
+        return [None] * n if seed is None else [int(seed) + i for i in range(n)]
+    if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == n and all(map(_seed_ok, seed)):
+        return [None if s is None else int(s) for s in seed]
+    raise ValueError(f"seed = {seed!r:.100} is invalid: must be None, an integer >= 0, or a list "
+                     f"of {n} such seeds (one per sub-environment)")
 
 
 def make_vec(num_envs: int = 1, max_episode_steps: int | None = None, **config: Any

@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
-from .cutoff import CutOffVectorEnv
+from .cutoff import CutOffVectorEnv, _seed_ok
 
 
 class CutOffVecEnv(VecEnv):
@@ -31,14 +31,30 @@ class CutOffVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
 
     # -- VecEnv ------------------------------------------------------------------------------
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        """SB3's ``seed``: sub-environment ``i`` gets ``seed + i`` at the next reset."""
+        if not _seed_ok(seed):
+            raise ValueError(f"seed = {seed!r} is invalid: must be None or an integer >= 0")
+        return super().seed(None if seed is None else int(seed))
+
     def reset(self) -> np.ndarray:
         seed = self._seeds[0]
         seeds = None if seed is None else [s if s is not None else 0 for s in self._seeds]
-        opts = self._options[0] or None
-        obs, _ = self.venv.reset(seed=seeds, options=opts)
+        obs, _ = self.venv.reset(seed=seeds, options=self._batched_options())
         self._reset_seeds()
         self._reset_options()
         return obs
+
+    def _batched_options(self) -> dict[str, Any] | None:
+        """SB3's per-environment options as the batched env's: the same dict for all, or one
+        ``{"conditions": c_i}`` per environment, gathered into ``{"conditions": [c_0, ...]}``."""
+        opts = [o or {} for o in self._options]
+        if all(o == opts[0] for o in opts):
+            return opts[0] or None
+        if all(set(o) <= {"conditions"} for o in opts):
+            return {"conditions": [o.get("conditions") for o in opts]}
+        raise ValueError("per-environment reset options other than 'conditions' differ between "
+                         "sub-environments; the batched env takes one set of options for all")
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -69,13 +85,26 @@ class CutOffVecEnv(VecEnv):
             return [None for _ in self._idx(indices)]
         return [getattr(self.venv, attr_name) for _ in self._idx(indices)]
 
+    def _all(self, indices: VecEnvIndices, what: str) -> list[int]:
+        """The sub-environments share one batched env: a change or a call reaches all of them,
+        so it may only be asked of all of them."""
+        idx = self._idx(indices)
+        if sorted(idx) != list(range(self.num_envs)):
+            raise ValueError(f"{what} with indices={indices!r}: the {self.num_envs} "
+                             f"sub-environments are one batched env; call it for all of them "
+                             f"(indices=None)")
+        return idx
+
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        self._all(indices, f"set_attr({attr_name!r})")
         setattr(self.venv, attr_name, value)
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None,
                    **method_kwargs) -> list[Any]:
-        fn = getattr(self.venv, method_name)
-        return [fn(*method_args, **method_kwargs) for _ in self._idx(indices)]
+        """Call ``method_name`` of the batched env once; its result is repeated per index."""
+        idx = self._all(indices, f"env_method({method_name!r})")
+        result = getattr(self.venv, method_name)(*method_args, **method_kwargs)
+        return [result for _ in idx]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper],
                        indices: VecEnvIndices = None) -> list[bool]:
