@@ -25,8 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(ROOT))
 
-import evaluate  # noqa: E402
 from agents import make_policy  # noqa: E402
+from agents.evaluation import EVAL_SEED, run_policy, suite_episodes  # noqa: E402
 from agents.oracle import TimedCutPolicy  # noqa: E402
 from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: E402
 from pneugym.provenance import provenance  # noqa: E402
@@ -34,13 +34,13 @@ from pneugym.provenance import provenance  # noqa: E402
 
 def shifted_oracle(shifts: list[int], episodes: int, seed: int) -> dict:
     """Suite figures of the oracle's cut times moved by each of ``shifts`` control periods."""
-    eps = evaluate.suite_episodes("robustness", episodes, seed)
+    eps = suite_episodes("robustness", episodes, seed)
     labels = np.array([label for label, _ in eps])
     conds = [c for _, c in eps]
     probe = CutOffVectorEnv(num_envs=1)
     period = probe.control_period_s
-    conv = evaluate.run_policy(make_policy("conventional", probe), conds, {}, seed)
-    orc = evaluate.run_policy(make_policy("oracle", probe), conds, {}, seed)
+    conv = run_policy(make_policy("conventional", probe), conds, {}, seed)
+    orc = run_policy(make_policy("oracle", probe), conds, {}, seed)
     t_cut = np.array([np.inf if t is None else float(t) for t in orc["cutoff_time_s"]])
     j_conv = conv["objective"].astype(float)
     j_orc = orc["objective"].astype(float)
@@ -48,7 +48,7 @@ def shifted_oracle(shifts: list[int], episodes: int, seed: int) -> dict:
     rows = []
     for k in sorted(set([0, *shifts])):
         pol = TimedCutPolicy(probe.observation_layout(), np.maximum(t_cut + k * period, 0.0))
-        out = orc if k == 0 else evaluate.run_policy(pol, conds, {}, seed)
+        out = orc if k == 0 else run_policy(pol, conds, {}, seed)
         j = out["objective"].astype(float)
         loss = {lab: float(j_orc[labels == lab].mean() - j[labels == lab].mean())
                 for lab in dict.fromkeys(labels)}
@@ -88,7 +88,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--shifts", type=int, nargs="+", default=[-5, -2, -1, 1, 2, 5],
                     help="shifts in control periods (0 is always run)")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per cell (evaluate.py's 2)")
-    ap.add_argument("--seed", type=int, default=evaluate.EVAL_SEED)
+    ap.add_argument("--seed", type=int, default=EVAL_SEED)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args(argv)
     res = shifted_oracle(args.shifts, args.episodes, args.seed)

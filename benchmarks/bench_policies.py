@@ -113,21 +113,23 @@ def bench_decide(runs: Path, repeats: int, calls: int, seed: int) -> dict:
 def bench_train(quick: bool, seed: int) -> dict:
     import tempfile
 
-    import train
+    from stable_baselines3 import PPO
+
     from agents import esac
+    from agents.training import load_config
+    from agents.training.sb3 import LatchedDQN, TrainingVecEnv
 
     out: dict = {}
     steps = 8_192 if quick else 32_768
     for algo in ("ppo", "dqn"):
-        cfg = train.load_config(algo)
-        P = train._sb3_parts()
+        cfg = load_config(algo)
         env_cfg = dict(cfg["env"])
         n = int(env_cfg.pop("num_envs"))
-        venv = P["VecEnv"](num_envs=n, preset=cfg["preset"], **env_cfg)
+        venv = TrainingVecEnv(num_envs=n, preset=cfg["preset"], **env_cfg)
         kwargs = dict(cfg["algo"])
         if algo == "dqn":
             kwargs["learning_starts"] = min(int(kwargs["learning_starts"]), steps // 4)
-        cls = P["PPO"] if algo == "ppo" else P["DQN"]
+        cls = PPO if algo == "ppo" else LatchedDQN
         model = cls("MlpPolicy", venv, seed=seed, device="cpu",
                     policy_kwargs=cfg.get("policy_kwargs"), **kwargs)
         t0 = time.perf_counter()
@@ -135,7 +137,7 @@ def bench_train(quick: bool, seed: int) -> dict:
         wall = time.perf_counter() - t0
         out[algo] = {"steps": int(model.num_timesteps), "wall_s": wall,
                      "steps_per_s": model.num_timesteps / wall}
-    cfg = train.load_config("esac")
+    cfg = load_config("esac")
     n = 256 if quick else 1024
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

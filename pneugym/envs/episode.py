@@ -11,9 +11,10 @@ from ..physics.layout import (
     D_MODE, D_STICKS, D_T, D_T_ARRIVE, MODE_START, MODE_STUCK, P_FS, P_NCELLS, P_PA, P_PS,
     STATUS_OK, Y_SD, Y_SE, Y_X,
 )
-from ..physics.system import (
-    chamber_pressures, command_advance, energy_wasted, max_drive_force, valve_closed,
-)
+from ..physics.advance import command_advance
+from ..physics.cylinder import chamber_pressures
+from ..physics.energy import energy_wasted, max_drive_force
+from ..physics.valve import valve_closed
 
 E_CUT = 0        # 1 while the supply is cut (latched unless reversible)
 E_REV = 1        # 1 = the agent may re-open the supply
@@ -70,7 +71,7 @@ def objective(y, P, d, e, done, completed):
 def step_one(y, P, d, e, action, w):
     """One control period of one episode. Returns ``(reward, plant status)``; ``e[E_DONE]``
     tells whether (and how) it ended. A finished episode is left untouched (reward 0).
-    ``w``: the plant's work array (:func:`pneugym.physics.system.work_size`), so that a step
+    ``w``: the plant's work array (:func:`pneugym.physics.advance.work_size`), so that a step
     allocates nothing."""
     if e[E_DONE] != 0.0:
         return 0.0, STATUS_OK
