@@ -261,6 +261,21 @@ def test_report_files(leak_case):
         assert (out / name).stat().st_size > 10_000
 
 
+def test_report_reads_only_what_a_fitted_discrepancy_has(leak_case):
+    """The report's view of the workflow (report.FittedDiscrepancy) names only what a fitted
+    Discrepancy has, and report.py does not import workflow.py (which imports it)."""
+    import ast
+
+    from pneugym.discrepancy import report
+    d = leak_case[3]
+    proto = report.FittedDiscrepancy
+    names = set(proto.__annotations__) | {n for n in vars(proto) if not n.startswith("_")}
+    assert {"runs_", "candidates_", "gap_before", "config"} <= names
+    assert [n for n in sorted(names) if not hasattr(d, n)] == []
+    tree = ast.parse(Path(report.__file__).read_text(encoding="utf-8"))
+    assert "workflow" not in {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+
+
 # -- end to end: control (no effect, nominal parameters a few percent off) through the CLI ---------
 def test_control_names_none_through_the_cli(tmp_path, capsys):
     known = thesis_rig(2.5)

@@ -5,16 +5,18 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
+from ..data import MeasuredRun
 from ..outputs import check_output_dir, staged_files
+from ..params import RigParams
 from ..provenance import provenance
-from .residuals import CHANNELS, PHASE_TEXT, PHASES, UNITS, channels_of
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .workflow import Discrepancy
+from .candidates import FitParam
+from .fit import FitResult
+from .prepare import Preparation
+from .residuals import CHANNELS, PHASE_TEXT, PHASES, UNITS, Finding, RunPhases, channels_of, reduction
 
 REPORT_FORMAT = "pneugym-discrepancy-report/1"
 NRMSE_DEFINITION = (
@@ -28,6 +30,53 @@ FAIL_Z = 3.0
 PLOTS = ("overlays.png", "residuals.png", "candidates.png")
 PHASE_COLOURS = {"before_motion": "#dddddd", "stroke": "#d6e9f8", "trapped": "#fde3c8",
                  "end_supply": "#dcf2d5"}
+
+
+class FittedDiscrepancy(Protocol):
+    """What the report reads of a fitted :class:`~pneugym.discrepancy.Discrepancy`: its results
+    after ``fit`` (defined here so that the report needs nothing of the workflow module, which
+    imports this one). ``candidates_`` holds :class:`~pneugym.discrepancy.CandidateResult`
+    entries, best first; the optional ``no_gap_``, ``noise_at_floor_`` and ``separation_`` are
+    read with ``getattr``."""
+
+    runs_: list[MeasuredRun]
+    fit_runs_: list[MeasuredRun]
+    holdout_runs_: list[MeasuredRun]
+    rigs_: list[RigParams]
+    phases_: list[RunPhases]
+    preparation_: list[Preparation]
+    sigma_: dict[str, float]
+    sims_: dict[str, list[dict[str, np.ndarray]]]
+    findings_: dict[str, list[Finding]]
+    candidates_: list[Any]
+    nominal_params_: tuple[FitParam, ...]
+    calibrated_: FitResult
+    fitted_params_: dict[str, float]
+    gaps_: dict[str, dict[str, dict[str, float]]]
+    named_effect_: str
+    decision_: str
+    ambiguous_: list[str]
+    suggestion_: str | None
+    warnings_: list[str]
+    wall_time_s_: float
+    min_improvement: float
+
+    @property
+    def held_out_tested(self) -> bool: ...
+
+    @property
+    def gap_before(self) -> float: ...
+
+    @property
+    def gap_after(self) -> float: ...
+
+    @property
+    def gap_reduction(self) -> float | None: ...
+
+    @property
+    def updated_model(self) -> RigParams: ...
+
+    def config(self) -> dict[str, Any]: ...
 
 
 def _clean(o: Any) -> Any:
@@ -48,9 +97,8 @@ def _clean(o: Any) -> Any:
     return o
 
 
-def report_dict(d: Discrepancy, updated_model_path: str | None = None) -> dict[str, Any]:
+def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> dict[str, Any]:
     """Everything the report says, as plain JSON-able data."""
-    from .workflow import reduction
     hold = {r.name for r in d.holdout_runs_}
     cal = d.gaps_["calibrated"]["all"]["overall"]
     runs = []
@@ -107,7 +155,7 @@ def _read(rig, path: str) -> float:
     return float(getattr(getattr(rig, g), name))
 
 
-def write_report(d: Discrepancy, out: str | Path, plots: bool = True) -> Path:
+def write_report(d: FittedDiscrepancy, out: str | Path, plots: bool = True) -> Path:
     """Write the report files into ``out`` (created) as a whole: they are written to a staging
     folder and renamed into ``out`` only once all are written, so a failure leaves the old
     report, model and plots as they were. Plots of an earlier report that this one does not
@@ -237,7 +285,7 @@ def _pct(v: float | None) -> str:
 
 
 # ------------------------------------------------------------------------------------------
-def write_plots(d: Discrepancy, out: Path) -> list[Path]:
+def write_plots(d: FittedDiscrepancy, out: Path) -> list[Path]:
     """``overlays.png``, ``residuals.png``, ``candidates.png``."""
     import matplotlib
     matplotlib.use("Agg")

@@ -1,4 +1,5 @@
-"""Replaying a measured run in the plant, phases of a run, noise levels, NRMSE, localisation.
+"""Replaying a measured run in the plant, phases of a run, noise levels, NRMSE and gap reduction,
+localisation.
 
 Channels compared (measured CSV column -> plant channel): ``x`` -> ``x``, ``p_drive`` ->
 ``p_drive_sensor``, ``p_exhaust`` -> ``p_exhaust_sensor`` (the transducers at the cylinder
@@ -170,6 +171,16 @@ def nrmse(runs: Sequence[MeasuredRun], sims: Sequence[Mapping[str, np.ndarray]])
         out[c] = float(np.sqrt(np.mean(e * e)) / rng)
     out["overall"] = float(np.mean([out[c] for c in chans]))
     return out
+
+
+#: an overall NRMSE at or below this is no gap: the model reproduces the runs to round-off
+#: (noise-free data simulated with the rig the JSON states); no gap reduction is computed
+NO_GAP = 1e-9
+
+
+def reduction(before: float, after: float) -> float | None:
+    """``1 - after / before``, or ``None`` when ``before`` is no gap (<= :data:`NO_GAP`)."""
+    return None if not before > NO_GAP else 1.0 - after / before
 
 
 @dataclass(frozen=True)

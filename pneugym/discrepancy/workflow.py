@@ -45,13 +45,16 @@ from .candidates import (
 )
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
 from .prepare import MAX_SAMPLES, prepare
+from .report import write_report
 from .residuals import (
+    NO_GAP,
     NOISE_FLOOR,
     RunPhases,
     estimate_noise,
     localise,
     noise_at_floor,
     nrmse,
+    reduction,
     replay,
     run_label,
     run_phases,
@@ -64,10 +67,6 @@ NO_HOLDOUT_WARNING = (
     "not tested on a held-out run: with a single run (or holdout none) every run is fitted, so "
     "the result is fitted, not validated; measure another run (e.g. another cut-off time) and "
     "hold one out")
-#: an overall NRMSE at or below this is no gap: the model reproduces the runs to round-off
-#: (noise-free data simulated with the rig the JSON states); no gap reduction is computed
-NO_GAP = 1e-9
-
 
 def noise_floor_warning(channels: Sequence[str]) -> str:
     """The warning for channels whose noise estimate is at :data:`NOISE_FLOOR`."""
@@ -76,11 +75,6 @@ def noise_floor_warning(channels: Sequence[str]) -> str:
             f"segments, so the residuals are in units of a floor ({floors}) instead of the "
             f"measured noise; their sizes in sigma and the significance tests are not meaningful "
             f"(simulated data without noise, or a coarsely quantised sensor?)")
-
-
-def reduction(before: float, after: float) -> float | None:
-    """``1 - after / before``, or ``None`` when ``before`` is no gap (<= :data:`NO_GAP`)."""
-    return None if not before > NO_GAP else 1.0 - after / before
 
 
 @dataclass
@@ -499,7 +493,7 @@ class Discrepancy:
     @property
     def gap_reduction(self) -> float | None:
         """``1 - gap_after / gap_before``; ``None`` when there is no gap to reduce
-        (``gap_before`` <= :data:`NO_GAP`: the nominal model reproduces the runs to round-off)."""
+        (``gap_before`` <= :data:`~pneugym.discrepancy.residuals.NO_GAP`: the nominal model reproduces the runs to round-off)."""
         return reduction(self.gap_before, self.gap_after)
 
     @property
@@ -547,7 +541,6 @@ class Discrepancy:
         as a whole (the set replaces the folder's old one only once every file is written).
         Raises :class:`pneugym.outputs.OutputError` (a ``ValueError``) naming ``out`` if it
         cannot be a writable folder; returns the path of ``report.json``."""
-        from .report import write_report
         if isinstance(out, str) and not out.strip():
             raise OutputError(f"report folder {out!r} is empty: give a folder path (an empty "
                               f"path would write into the current folder)")
