@@ -9,20 +9,18 @@ import json
 import os
 import pickle
 import shutil
-import sys
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import train  # noqa: E402
-
-from agents import safe_load  # noqa: E402
-from agents.learned import LayoutMismatchError, RunFileError, read_run, run_member  # noqa: E402
-from agents.registry import load_policy  # noqa: E402
-from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: E402
+from agents import safe_load, training
+from agents.learned import LayoutMismatchError, RunFileError, read_run, run_member
+from agents.registry import load_policy
+from agents.training.checkpoints import load_checkpoint, restore_replay_buffer
+from agents.training.sb3 import LatchedDQN, TrainingVecEnv
+from pneugym.envs.cutoff import CutOffVectorEnv
 
 TINY = {
     # lin_ makes learning_rate a callable: pickled in the file, replaced on load
@@ -40,8 +38,8 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("secruns")
     out = {}
     for algo in ("ppo", "dqn"):
-        train.train(algo, root / algo, timesteps=256, seed=1, progress=False,
-                    overrides=TINY[algo] + [f"cache_dir={root / 'cache'}"])
+        training.train(algo, root / algo, timesteps=256, seed=1, progress=False,
+                       overrides=TINY[algo] + [f"cache_dir={root / 'cache'}"])
         out[algo] = root / algo
     return out
 
@@ -141,15 +139,14 @@ def test_resume_checkpoint_loads_without_unpickling(runs, no_unpickling):
     """The --resume path: a DQN checkpoint on its training environment, schedules from the config,
     and its replay buffer from plain arrays."""
     run = json.loads((runs["dqn"] / "run.json").read_text())
-    P = train._sb3_parts()
-    venv = P["VecEnv"](num_envs=4, history=3, preset="randomized")
+    venv = TrainingVecEnv(num_envs=4, history=3, preset="randomized")
     ckpt = runs["dqn"] / run["checkpoint"]
-    model = train.load_checkpoint(P["DQN"], "dqn", ckpt, venv, {"train_freq": [3, "step"]},
-                                  venv.observation_layout())
+    model = load_checkpoint(LatchedDQN, "dqn", ckpt, venv, {"train_freq": [3, "step"]},
+                            venv.observation_layout())
     assert model.num_timesteps == run["timesteps_done"]
     assert tuple(model.train_freq) == (3, _train_freq_unit("step"))
     assert type(model.replay_buffer).__name__ == "NStepReplayBuffer"  # rebuilt, as trained
-    train.restore_replay_buffer(model, ckpt)
+    restore_replay_buffer(model, ckpt)
     assert model.replay_buffer.pos == run["timesteps_done"] // 4
 
 
@@ -228,8 +225,8 @@ def test_resume_refuses_a_crafted_checkpoint(runs, tmp_path):
     ck = d / run["checkpoint"]
     _rewrite(ck, ck, lambda data: data.update(evil=_payload(marker)))
     with pytest.raises(safe_load.UnsafeModelError, match="under 'evil'"):
-        train.train("dqn", d, timesteps=512, seed=1, resume=True, progress=False,
-                    overrides=TINY["dqn"] + [f"cache_dir={runs['dqn'].parent / 'cache'}"])
+        training.train("dqn", d, timesteps=512, seed=1, resume=True, progress=False,
+                       overrides=TINY["dqn"] + [f"cache_dir={runs['dqn'].parent / 'cache'}"])
     assert not marker.exists()
 
 
@@ -316,12 +313,11 @@ def test_not_a_model(tmp_path):
 # replay buffers
 # ------------------------------------------------------------------------------------------------
 def test_replay_buffer_round_trip_and_checks(runs, tmp_path):
-    P = train._sb3_parts()
-    venv = P["VecEnv"](num_envs=4, history=3, preset="randomized")
+    venv = TrainingVecEnv(num_envs=4, history=3, preset="randomized")
     run = json.loads((runs["dqn"] / "run.json").read_text())
     ckpt = runs["dqn"] / run["checkpoint"]
-    a = train.load_checkpoint(P["DQN"], "dqn", ckpt, venv, {}, venv.observation_layout())
-    b = train.load_checkpoint(P["DQN"], "dqn", ckpt, venv, {}, venv.observation_layout())
+    a = load_checkpoint(LatchedDQN, "dqn", ckpt, venv, {}, venv.observation_layout())
+    b = load_checkpoint(LatchedDQN, "dqn", ckpt, venv, {}, venv.observation_layout())
     rng = np.random.default_rng(0)
     buf = a.replay_buffer
     for k in safe_load.REPLAY_ARRAYS:
@@ -347,19 +343,18 @@ def test_replay_buffer_round_trip_and_checks(runs, tmp_path):
 
 
 def test_pickled_replay_buffer_needs_the_trust_flag(runs, tmp_path, capsys):
-    P = train._sb3_parts()
-    venv = P["VecEnv"](num_envs=4, history=3, preset="randomized")
+    venv = TrainingVecEnv(num_envs=4, history=3, preset="randomized")
     run = json.loads((runs["dqn"] / "run.json").read_text())
     ckpt = tmp_path / "ckpt_000000256.zip"
     shutil.copy(runs["dqn"] / run["checkpoint"], ckpt)
-    model = train.load_checkpoint(P["DQN"], "dqn", ckpt, venv, {}, venv.observation_layout())
+    model = load_checkpoint(LatchedDQN, "dqn", ckpt, venv, {}, venv.observation_layout())
     marker = tmp_path / "ran"
     (tmp_path / "replay_000000256.pkl").write_bytes(pickle.dumps(_Marker(marker)))
-    train.restore_replay_buffer(model, ckpt)
+    restore_replay_buffer(model, ckpt)
     assert not marker.exists() and model.replay_buffer.pos == 0
     assert "--trust-pickled-replay-buffer" in capsys.readouterr().out
     with pytest.raises(AssertionError):  # trusted: unpickled (SB3 then finds no buffer in it)
-        train.restore_replay_buffer(model, ckpt, trust_pickle=True)
+        restore_replay_buffer(model, ckpt, trust_pickle=True)
     assert marker.exists()
 
 
@@ -384,10 +379,10 @@ def test_run_json_paths_stay_inside_the_run(runs, tmp_path, name):
     with pytest.raises(RunFileError, match="outside the run directory"):
         load_policy(d, _env())
     with pytest.raises(RunFileError, match="'model'.*outside the run directory"):
-        train.model_path(d)
+        training.model_path(d)
     with pytest.raises(RunFileError, match="'checkpoint'.*outside the run directory"):
-        train.train("ppo", d, timesteps=512, seed=1, resume=True, progress=False,
-                    overrides=TINY["ppo"])
+        training.train("ppo", d, timesteps=512, seed=1, resume=True, progress=False,
+                       overrides=TINY["ppo"])
 
 
 def test_symlinks_out_of_the_run_are_refused(runs, tmp_path):
@@ -420,7 +415,7 @@ def test_malformed_run_json_is_named(tmp_path, text, match):
     with pytest.raises(RunFileError, match=match):
         load_policy(tmp_path, _env())
     with pytest.raises(RunFileError, match=match):
-        train.model_path(tmp_path)
+        training.model_path(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -495,7 +490,7 @@ def test_data_json_beyond_the_parser_limits_names_the_file(runs, tmp_path):
         entries = {n: z.read(n) for n in z.namelist()}
     for name, data, match in (
             ("digits.zip", b'{"n_steps": 1' + b"0" * 5000 + b"}", "not the JSON of a "
-                                                                 "stable-baselines3 model"),
+             "stable-baselines3 model"),
             ("deep.zip", b'{"a": ' + b"[" * 100_000, "nested too deeply")):
         with zipfile.ZipFile(tmp_path / name, "w") as z:
             for n, b in entries.items():

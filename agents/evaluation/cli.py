@@ -1,0 +1,87 @@
+"""Benchmark cut-off policies on the pneugym suites and write results.json, results.csv and plots.
+
+examples:
+  pneugym evaluate       # baselines + trained ESAC, PPO, DQN (trained on demand), both suites
+  pneugym evaluate --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
+      --suite robustness --episodes 3 --seed 1000000 --out results
+  pneugym evaluate --policies gaslaw esac=runs/esac esac10=runs/esac:max_time_increase=0.1
+  python evaluate.py --policies gaslaw --no-progress   # the same command, from a checkout
+
+Suites (sensor noise 0.03 mm / 400 Pa in every episode):
+- ``nominal``: the thesis conditions, 1.5 and 2.5 bar gauge with 10 kg;
+- ``robustness``: load {5, 10, 15, 20, 30} kg x supply {1.5, 2, 2.5, 3, 4, 5} bar, plus
+  disturbance sets at 1.5 and 2.5 bar with 10 kg: random supply dips (10-30 %, 50-300 ms),
+  friction -30 % / +30 %, valve delay -20 % / +20 %.
+
+Every policy meets the same episodes (conditions and sensor noise from ``--seed``; keep evaluation
+seeds >= 1,000,000, the range this project never uses for training or calibration). Every saved
+model is loaded and checked (file, observation layout, decision overrides) before any episode
+runs or any policy is trained on demand; a problem is a usage error (exit 2) naming it.
+``oracle_fraction = (return - conventional return) / (oracle return - conventional return)``
+on the suite's (or condition's) mean returns.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any, Sequence
+
+from pneugym.outputs import check_output_dir
+
+from .outputs import print_table, write_outputs
+from .run import evaluate
+from .specs import DEFAULT_POLICIES, check_policy_specs, load_models, resolve_learned
+from .suites import EVAL_SEED
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line of ``pneugym evaluate`` / ``python evaluate.py``."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--policies", nargs="+", default=DEFAULT_POLICIES,
+                    help="baseline names, learned ones (esac, ppo, dqn: runs/<name>, trained "
+                         "on demand) and/or NAME=PATH of saved models")
+    ap.add_argument("--runs", default="runs", help="where learned policies are (and are trained)")
+    ap.add_argument("--budget", default="quick",
+                    help="train.py budget for learned policies trained on demand")
+    ap.add_argument("--suite", default="all", choices=["nominal", "robustness", "all"])
+    ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
+    ap.add_argument("--seed", type=int, default=EVAL_SEED,
+                    help=f"seed of the episodes (default {EVAL_SEED:,}; keep >= {EVAL_SEED:,})")
+    ap.add_argument("--out", default="results",
+                    help="folder for results.json, results.csv and the plots")
+    ap.add_argument("--no-progress", action="store_true",
+                    help="no progress bars (evaluation, and training on demand)")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run the command line ``argv`` (default: ``sys.argv[1:]``); returns the ``results.json``
+    structure. Every problem found before the work (a policy spec, a saved model, ``--seed``,
+    ``--runs``, ``--out``) exits 2 with the message."""
+    ap = parser()
+    args = ap.parse_args(argv)
+    if args.episodes < 1:
+        ap.error(f"--episodes {args.episodes}: must be >= 1 (episodes per condition cell)")
+    if not 0 <= args.seed < 2 ** 63:
+        ap.error(f"--seed {args.seed}: episode seeds must be integers from 0 to 2**63 - 1; "
+                 f"held-out results use {EVAL_SEED:,} and up")
+    try:  # before any work: a wrong name, an unusable model or --out must not cost a training
+        check_policy_specs(args.policies)
+        preloaded = load_models(args.policies, args.runs, args.budget)
+        check_output_dir(args.out, "--out")  # the string as given: "" is not the current folder
+    except (ValueError, OSError) as exc:
+        ap.error(str(exc))
+    if args.seed < EVAL_SEED:
+        print(f"warning: --seed {args.seed} lies in the range used for training and tuning "
+              f"(below {EVAL_SEED:,}); figures on it are not held-out results", file=sys.stderr)
+    suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
+    progress = not args.no_progress
+    policies = resolve_learned(args.policies, args.runs, args.budget, progress)
+    results = evaluate(policies, suites, args.episodes, args.seed, preloaded=preloaded,
+                       progress=progress)
+    print_table(results)
+    write_outputs(results, args.out)
+    print(f"\nwrote {args.out}/results.json, results.csv and plots")
+    return results

@@ -1,0 +1,46 @@
+"""What an evaluation leaves: the table it prints (:func:`print_table`), and ``results.json``,
+``results.csv`` and the plots (:mod:`~agents.evaluation.plots`), replaced as a set
+(:func:`write_outputs`)."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+from pneugym.outputs import atomic_write_json, staged_files
+
+from .plots import plot_results
+
+
+def print_table(results: dict[str, Any]) -> None:
+    """The metrics of every policy, one table per suite."""
+    for suite, s in results["suites"].items():
+        n = next(iter(s["policies"].values()))["episodes"]
+        print(f"\n== {suite} suite ({n} episodes per policy)")
+        print(f"{'policy':<14}{'saving %':>9}{'time +%':>9}{'stall %':>8}{'stick %':>8}"
+              f"{'done %':>8}{'return':>9}{'oracle fr.':>11}")
+        for name, p in s["policies"].items():
+            def pct(v):
+                return f"{100 * v:.1f}" if v is not None else "-"
+            of = p["oracle_fraction"]
+            print(f"{name:<14}{pct(p['saving_mean']):>9}{pct(p['time_increase_mean']):>9}"
+                  f"{pct(p['stall_rate']):>8}{pct(p['stick_slip_rate']):>8}"
+                  f"{pct(p['completion_rate']):>8}{p['return_mean']:>9.3f}"
+                  f"{(f'{of:.3f}' if of is not None else '-'):>11}")
+    print("(oracle: privileged, knows each episode's conditions; oracle fraction = share of the "
+          "oracle's gain over conventional)")
+
+
+def write_outputs(results: dict[str, Any], out: str | Path) -> None:
+    """results.json, results.csv and the plots, replacing those in ``out`` only once all are
+    written (an error leaves the previous set untouched)."""
+    with staged_files(out) as stage:
+        atomic_write_json(stage / "results.json", results)
+        rows = [r for s in results["suites"].values() for r in s["episodes"]]
+        if rows:
+            keys = list(dict.fromkeys(k for r in rows for k in r))
+            with open(stage / "results.csv", "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=keys)
+                w.writeheader()
+                w.writerows(rows)
+        plot_results(results, stage)

@@ -1,0 +1,113 @@
+"""Running an evaluation: every policy on the same episodes of each suite, all episodes of a
+policy stepped as one batch (:func:`run_policy`), and the metrics per suite and per condition
+(:func:`summarize`); :func:`evaluate` returns the ``results.json`` structure.
+``oracle_fraction = (return - conventional return) / (oracle return - conventional return)`` on
+the suite's (or condition's) mean returns."""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+import pneugym  # noqa: F401  (registers the environment)
+from agents.base import Policy, run_first_episodes
+from pneugym.envs import Conditions
+from pneugym.envs.cutoff import CutOffVectorEnv
+from pneugym.provenance import provenance
+
+from .specs import check_policy_specs, make_named_policy, parse_spec
+from .suites import NOISE, suite_episodes
+
+
+def run_policy(policy: Policy, conds: Sequence[Conditions], env_config: dict, seed: int
+               ) -> dict[str, np.ndarray]:
+    """Final figures of one episode per condition, all stepped as one batch."""
+    env = CutOffVectorEnv(num_envs=len(conds), autoreset=False, **env_config)
+    return run_first_episodes(env, policy, list(conds), seed)
+
+
+def _mean(v: Sequence[Any]) -> float | None:
+    vals = [float(x) for x in v if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.mean(vals)) if vals else None
+
+
+def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str, Any]:
+    """Suite (or condition) metrics of one policy's episode records."""
+    ret = _mean([r["objective"] for r in rec])
+    gap = oracle - conv
+    return {
+        "episodes": len(rec),
+        "saving_mean": _mean([r["saving_ratio"] for r in rec]),
+        "time_increase_mean": _mean([r["time_increase"] for r in rec]),
+        "stall_rate": _mean([r["stalled"] for r in rec]),
+        "stick_slip_rate": _mean([r["stick_slip_events"] > 0 for r in rec]),
+        "completion_rate": _mean([r["completed"] for r in rec]),
+        "return_mean": ret,
+        "oracle_fraction": (ret - conv) / gap if abs(gap) > 1e-12 else None,
+    }
+
+
+def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
+             env_config: dict | None = None,
+             preloaded: Mapping[str, Policy] | None = None, progress: bool = True
+             ) -> dict[str, Any]:
+    """Run every policy on every suite; returns the results.json structure. ``preloaded``:
+    policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
+    ``progress``: a progress bar over the policies of each suite."""
+    env_config = dict(env_config or {})
+    check_policy_specs(policies)
+    names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
+    probe = CutOffVectorEnv(num_envs=1, **env_config)
+    preloaded = dict(preloaded or {})
+    results: dict[str, Any] = {"suites": {}}
+    for suite in suites:
+        eps = suite_episodes(suite, episodes, seed)
+        conds = [c for _, c in eps]
+        records: dict[str, list[dict[str, Any]]] = {}
+        wall: dict[str, float] = {}
+        for spec in tqdm(names, desc=f"{suite} suite", unit="policy", disable=not progress):
+            name = parse_spec(spec)[0]
+            name, pol = (name, preloaded[name]) if name in preloaded else make_named_policy(
+                spec, probe)
+            t0 = time.perf_counter()
+            out = run_policy(pol, conds, env_config, seed)
+            wall[name] = time.perf_counter() - t0
+            records[name] = [
+                {"suite": suite, "policy": name, "condition": label, "episode": i,
+                 **{k: _py(v[i]) for k, v in out.items()}, **c.to_dict()}
+                for i, (label, c) in enumerate(eps)]
+        conv_ret = _mean([r["objective"] for r in records["conventional"]])
+        orc_ret = _mean([r["objective"] for r in records["oracle"]])
+        labels = list(dict.fromkeys(label for label, _ in eps))
+        pols = {}
+        for name, rec in records.items():
+            s = summarize(rec, conv_ret, orc_ret)
+            s["wall_time_s"] = wall[name]
+            s["per_condition"] = {}
+            for lab in labels:
+                sub = [r for r in rec if r["condition"] == lab]
+                cr = _mean([r["objective"] for r in records["conventional"] if r["condition"] == lab])
+                orr = _mean([r["objective"] for r in records["oracle"] if r["condition"] == lab])
+                s["per_condition"][lab] = summarize(sub, cr, orr)
+            pols[name] = s
+        results["suites"][suite] = {"policies": pols, "conditions": labels,
+                                    "episodes": [r for rec in records.values() for r in rec]}
+    results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
+                         "seed": seed, "env_config": {k: repr(v) if not isinstance(
+                             v, (int, float, str, bool, type(None))) else v
+                             for k, v in env_config.items()},
+                         "sensor_noise": NOISE}
+    results["seed"] = seed
+    prov = provenance()
+    results["versions"] = prov.pop("versions")
+    results["provenance"] = prov
+    return results
+
+
+def _py(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    return v

@@ -1,0 +1,101 @@
+"""Train learned cut-off policies: stable-baselines3 PPO and DQN on the batched environment, and
+the ESAC neural predictor (thesis 6.8).
+
+examples:
+  pneugym train --algo ppo  --preset randomized --timesteps 1500000 --seed 0 --out runs/ppo
+  pneugym train --algo dqn  --out runs/dqn
+  pneugym train --algo esac --out runs/esac          # --timesteps = rollouts of training data
+  pneugym train --algo ppo --out runs/ppo --resume   # continue from the last checkpoint
+  pneugym train --algo ppo --budget quick            # the quick budget of configs/ppo.yaml
+  pneugym train --algo ppo --set algo.learning_rate=1e-4 --set env.history=8
+  python train.py --algo ppo                         # the same command, from a checkout
+
+Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``quick`` one that
+overrides it); ``--set key.sub=value`` overrides single entries. Every run directory holds
+``run.json`` (configuration, seed, package versions, observation layout, status, validation
+history), the model (``model.zip`` / ``best_model.zip`` for SB3, ``model.pt`` for ESAC), the last
+checkpoints and the logs (``progress.csv``; TensorBoard event files under ``tb/`` when
+``tensorboard`` is installed). Files are written to a temporary name and renamed, so an
+interrupted run leaves its last good checkpoint usable. Training seeds stay below 1,000,000;
+evaluation uses the seeds above.
+
+Runs are never lost: a run folder that holds anything is refused unless ``--resume`` (continue its
+last checkpoint; an error if there is none) or ``--force`` (start over a folder that holds a
+train.py ``run.json``: lists the files train.py wrote there, then removes exactly those; other
+files stay, and a non-empty folder without ``run.json`` is refused even with ``--force``). The
+whole configuration (YAML file, budget, ``--set``) is checked before anything is written: unknown
+keys (with the nearest known name), SB3 keywords against the algorithm's constructor, types and
+ranges. SIGINT or SIGTERM stop training at the next step with a checkpoint and
+``status: "interrupted"`` in ``run.json``; ``--resume`` continues from it (a second signal stops
+at once; a run whose seed is not a training seed is not resumed). Checkpoints are loaded without
+unpickling anything (``agents/safe_load.py``); DQN replay buffers are saved as plain arrays
+(``replay_*.npz``), and the pickled ``replay_*.pkl`` of older runs are loaded only with
+``--trust-pickled-replay-buffer`` (only for your own runs).
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from typing import Any, Sequence
+
+from .config import ALGOS
+from .rundir import RUN_FILE
+from .signals import TrainingInterrupted
+from .trainer import train
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line of ``pneugym train`` / ``python train.py``."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--algo", required=True, choices=ALGOS, help="what to train")
+    ap.add_argument("--preset", default=None, help="condition preset (default: the config's)")
+    ap.add_argument("--timesteps", type=int, default=None,
+                    help="environment steps (ppo, dqn) or training rollouts (esac)")
+    ap.add_argument("--seed", type=int, default=0, help="training seed (< 1,000,000)")
+    ap.add_argument("--out", default=None, help="run directory (default runs/<algo>)")
+    ap.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    ap.add_argument("--budget", default="default", help="section of the config (default, quick)")
+    ap.add_argument("--config", default=None, help="YAML file (default configs/<algo>.yaml)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a config entry, e.g. algo.learning_rate=1e-4")
+    ap.add_argument("--force", action="store_true",
+                    help="start over in a run folder that holds a train.py run.json (lists, then "
+                         "removes the files train.py wrote there; keeps anything else)")
+    ap.add_argument("--trust-pickled-replay-buffer", action="store_true",
+                    help="--resume of a DQN run from an older pneugym: load its pickled replay "
+                         "buffer (a pickle can run code: only for your own runs)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run the command line ``argv`` (default: ``sys.argv[1:]``); returns the finished run's
+    ``run.json`` content. A bad option or configuration exits 2 with the message; a run stopped
+    by SIGINT or SIGTERM exits 130 or 143, saying how to continue it."""
+    ap = parser()
+    args = ap.parse_args(argv)
+    out = args.out if args.out is not None else f"runs/{args.algo}"  # "" is refused, not replaced
+    try:
+        run = train(args.algo, out, args.preset, args.timesteps, args.seed, args.resume,
+                    args.budget, args.config, args.set, not args.no_progress, args.force,
+                    args.trust_pickled_replay_buffer)
+    except ValueError as exc:
+        ap.error(str(exc))
+    except TrainingInterrupted as exc:
+        where = f"; last checkpoint {out}/{exc.run['checkpoint']}" if (
+            exc.run and exc.run.get("checkpoint")) else ""
+        command = ap.prog if ap.prog.startswith("pneugym") else "python train.py"
+        again = (f"continue with: {command} --algo {args.algo} --out {out} --resume"
+                 if args.algo != "esac" else "ESAC has no checkpoints: rerun with --force")
+        print(f"{exc}: {out}/{RUN_FILE} records it{where}; {again}", file=sys.stderr,
+              flush=True)
+        raise SystemExit(128 + signal.Signals[exc.signal_name].value) from None
+    best = run.get("best", {})
+    frac = best.get("oracle_fraction")
+    print(f"done in {run['total_wall_s']:.0f} s: {out}/{run['model']}"
+          f" (validation return {best.get('return', float('nan')):.4f}, oracle fraction "
+          f"{'-' if frac is None else f'{frac:.3f}'})")
+    return run

@@ -1,0 +1,118 @@
+"""One training run, from its configuration to a finished ``run.json`` (:func:`train`): the
+configuration checked whole, the run folder checked (new, ``--resume`` or ``--force``), the run
+recorded, and PPO, DQN (:mod:`~agents.training.sb3`) or ESAC (:mod:`~agents.training.esac`)
+trained with SIGINT and SIGTERM turned into a clean stop."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from .config import ALGOS, load_config
+from .resume import config_changes, occupied, resumable, resume_seed, start_over
+from .rundir import RUN_FILE, atomic_write_json, read_run
+from .seeds import MAX_TRAINING_SEED, check_seed
+from .signals import StopRequest, TrainingInterrupted, stop_on_signals
+
+
+def _threads(cfg: Mapping[str, Any]) -> None:
+    """One thread each for numba and torch unless configured (the machine is small and shared;
+    numba's parallel batch kernel is slower than one thread on a busy machine)."""
+    import numba
+    import torch
+
+    numba.set_num_threads(max(1, min(int(cfg.get("numba_threads", 1)), numba.config.NUMBA_NUM_THREADS)))
+    torch.set_num_threads(int(cfg.get("torch_threads", 1)))
+
+
+def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int | None = None,
+          seed: int = 0, resume: bool = False, budget: str = "default",
+          config: str | Path | None = None, overrides: Sequence[str] = (),
+          progress: bool = True, force: bool = False,
+          trust_pickled_replay_buffer: bool = False) -> dict[str, Any]:
+    """Train ``algo`` into ``out``; returns the final ``run.json`` content.
+
+    The configuration is checked whole before anything is written
+    (:func:`~agents.training.config.check_config`). ``out`` must be new or empty unless
+    ``resume`` (continue from its last checkpoint; an error if there is none, or if the run's
+    seed is not a training seed) or ``force`` (start over a folder holding a train.py
+    ``run.json``: the files train.py wrote there, :func:`~agents.training.rundir.run_files`, are
+    listed, then removed; anything else stays, and a non-empty folder without ``run.json`` is
+    refused).
+    SIGINT or SIGTERM stop training at the next step: the last checkpoint is saved, ``run.json``
+    records ``status: "interrupted"`` and :class:`TrainingInterrupted` is raised. DQN replay
+    buffers of older runs (pickles) are loaded on resume only with
+    ``trust_pickled_replay_buffer`` (only for your own runs)."""
+    from pneugym.outputs import check_output_dir
+    from pneugym.provenance import provenance
+
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; choose one of {ALGOS}")
+    if resume and force:
+        raise ValueError("--resume continues the run in --out, --force starts it over: give one")
+    check_seed("training", seed)
+    # the whole configuration, checked before anything is written
+    cfg = load_config(algo, budget, config, overrides, preset=preset, timesteps=timesteps,
+                      seed=None if resume else seed)
+    raw_out, out = out, Path(out)
+    if out.exists() or not resume:
+        check_output_dir(raw_out, "run folder (--out)")
+    prev = read_run(out) if out.is_dir() else None
+    if resume:
+        resumable(out, prev, algo)
+        old = resume_seed(out, prev)
+        if old != seed:
+            print(f"--resume: using the run's seed {old} (not {seed})", flush=True)
+            seed = old
+        changes = config_changes(prev.get("config", {}), cfg)
+        if changes:
+            print("--resume: the configuration differs from the run's (the new values apply): "
+                  + "; ".join(changes), flush=True)
+    elif force:
+        start_over(out, prev)
+        prev = None
+    elif any(out.iterdir()):
+        raise ValueError(occupied(out, prev))
+    _threads(cfg)
+    from agents import esac
+    from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: F401  (load the plant's code now)
+    esac.source_hash()  # ... and key caches by these sources, even if the files change meanwhile
+    run: dict[str, Any] = dict(prev) if resume else {}
+    if "interrupted" in run:
+        run["interruptions"] = [*run.get("interruptions", []), run.pop("interrupted")]
+    run.update({"algo": algo, "seed": seed, "preset": cfg["preset"], "budget": budget,
+                "config": cfg, "command": [Path(sys.argv[0]).name, *sys.argv[1:]],
+                "provenance": provenance(), "pneugym_sources": esac.source_hash(),
+                "training_seeds_below": MAX_TRAINING_SEED})
+    run.setdefault("started_utc", run["provenance"]["created_utc"])
+
+    def record(**kw: Any) -> None:
+        run.update(kw)
+        atomic_write_json(out / RUN_FILE, run)
+
+    record(status="running")
+    t0 = time.perf_counter()
+    stop = StopRequest()
+    try:
+        with stop_on_signals(stop, graceful=algo != "esac"):
+            if algo == "esac":
+                from .esac import train_esac
+
+                summary = train_esac(cfg, out, seed, progress, record)
+            else:
+                from .sb3 import train_sb3  # imported here: SB3 loads only to train
+
+                summary = train_sb3(cfg, out, seed, resume, progress, record, stop,
+                                    trust_pickled_replay_buffer)
+    except KeyboardInterrupt as exc:
+        sig = getattr(exc, "signal_name", None) or stop.signal or "SIGINT"
+        done = int(run.get("timesteps_done", 0)) if algo != "esac" else 0
+        record(status="interrupted", interrupted={
+            "signal": sig, "timesteps_done": done, "checkpoint": run.get("checkpoint")
+            if algo != "esac" else None, "wall_s": time.perf_counter() - t0})
+        raise TrainingInterrupted(sig, done, run) from None
+    summary["total_wall_s"] = time.perf_counter() - t0 + (
+        float(prev.get("total_wall_s", 0.0)) if resume else 0.0)
+    record(status="finished", **summary)
+    return run
