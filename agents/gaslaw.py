@@ -132,10 +132,15 @@ def calibrate(supplies_bar: Sequence[float] = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0),
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default=str(CALIBRATION_FILE), help="calibration JSON")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="examples:\n  pneugym gaslaw                       # writes agents/gaslaw_k.json\n"
+               "  pneugym gaslaw --out /tmp/k.json --plot /tmp/k.png --seed 1",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(CALIBRATION_FILE), metavar="FILE",
+                    help="calibration JSON (default: the K table the Gas-Law policy reads)")
     ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the sweep's episodes (0)")
     args = ap.parse_args(argv)
     from pneugym.outputs import atomic_write_json, check_output_file
     from pneugym.provenance import provenance

@@ -170,9 +170,14 @@ def report(theta: np.ndarray) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="calibration/calibration.json")
-    ap.add_argument("--max-nfev", type=int, default=60)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="examples:\n  pneugym calibrate --out calibration/calibration.json\n"
+               "  pneugym calibrate --from-defaults --max-nfev 20 --out /tmp/cal.json",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="calibration/calibration.json", metavar="FILE",
+                    help="the calibration record (JSON; default calibration/calibration.json)")
+    ap.add_argument("--max-nfev", type=int, default=60, help="least-squares evaluations (60)")
     ap.add_argument("--from-defaults", action="store_true",
                     help="start from the current defaults instead of the priors")
     ap.add_argument("--start", help="start from the parameters of an earlier calibration JSON")

@@ -366,10 +366,20 @@ def plot_report(data: dict, outdir: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description="pneugym validation report")
-    ap.add_argument("--json", default="validation/report.json", help="where to write the table")
-    ap.add_argument("--plots", default="validation", help="folder for the PNG plots")
+    """``pneugym validate``: the table against the thesis's figures, report.json and PNG plots."""
+    ap = argparse.ArgumentParser(
+        description="The plant's validation report: every published figure of the thesis beside "
+                    "the simulated one, with its tolerance.",
+        epilog="examples:\n  pneugym validate --out validation/\n"
+               "  pneugym validate --json report.json --plots plots/",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="validation", metavar="DIR",
+                    help="folder for report.json and the plots (default validation/)")
+    ap.add_argument("--json", default=None, help="where to write the table (default OUT/report.json)")
+    ap.add_argument("--plots", default=None, help="folder for the PNG plots (default OUT)")
     a = ap.parse_args(argv)
+    a.json = a.json if a.json is not None else str(Path(a.out) / "report.json")
+    a.plots = a.plots if a.plots is not None else a.out
     try:  # before the (minute-long) report: an unusable path must not cost the run
         check_output_file(a.json, "--json")
         check_output_dir(a.plots, "--plots")

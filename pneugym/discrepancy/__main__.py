@@ -24,9 +24,13 @@ from .workflow import Discrepancy
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m pneugym.discrepancy",
         description="Find where simulation and measurement disagree, name the missing effect, "
-                    "add it to the model and show the gap shrink.")
+                    "add it to the model and show the gap shrink.",
+        epilog="examples:\n"
+               "  pneugym discrepancy runs/ --out report/\n"
+               "  pneugym discrepancy runs/a runs/b.csv --out report/ --holdout b --jobs 2\n"
+               "  python -m pneugym.discrepancy runs/ --out report/ --no-plots --no-progress",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("paths", nargs="+", metavar="PATH", help="a run (NAME.csv/NAME.json/NAME) or a folder of runs")
     ap.add_argument("--out", required=True, metavar="DIR", help="folder for report.json, report.md, plots")
     ap.add_argument("--holdout", default="auto", metavar="NAME",
@@ -46,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"most samples per run after windowing; more are block-averaged "
                          f"(default {MAX_SAMPLES})")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                    help="no progress bar")
     return ap
 
 
