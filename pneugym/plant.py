@@ -177,7 +177,7 @@ def set_supply_dip(P: np.ndarray, start_s: float, duration_s: float, depth: floa
 def stability_limits(params: RigParams) -> dict[str, float]:
     """Largest stable substep [s] for each fast process of the explicit part (before the safety
     factor). The valve and port flows are implicit in the IMEX substep
-    (:func:`pneugym.physics.system.stage_rhs`) and set no limit.
+    (:func:`pneugym.physics.rhs.stage_rhs`) and set no limit.
 
     - ``line CFL``: the line's acoustic modes (FD line only). On the staggered grid with the
       centred momentum flux the semi-discrete modes of a uniform flow satisfy
@@ -189,7 +189,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
       conductance): exhaust, leaks, and the valve when the line has a single cell (that cell
       takes the implicit port flow, the valve's is explicit);
     - ``implicit orifice chain of the lumped line``: no stability limit (valve, joints and port
-      are solved together, :func:`pneugym.physics.system.implicit_chain`), but a robustness bound
+      are solved together, :func:`pneugym.physics.chain.implicit_chain`), but a robustness bound
       ``h lambda <= CHAIN_H_LAMBDA`` for the chain's explicit first IMEX stage (see below);
     - ``line friction``, ``piston air spring``, ``piston viscous``, ``heat transfer``.
     """
@@ -219,7 +219,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     orifice("leak drive", e.leak_drive_area_m2, v0d, math.inf)
     orifice("leak piston", e.leak_piston_area_m2, v0d, c.dead_volume_m3)
     if ln.model == "lumped" and ln.n_cells > 1:
-        # the whole orifice chain (valve, joints, port) is implicit (pneugym.physics.system.
+        # the whole orifice chain (valve, joints, port) is implicit (pneugym.physics.chain.
         # implicit_chain) and has no stability limit, but its first IMEX stage is explicit:
         # where h lambda of the chain is large, a sudden change (the valve opening onto the
         # empty line) overshoots and a cell's mass goes negative. Measured along extensions
@@ -662,7 +662,7 @@ class Plant:
 # ------------------------------------------------------------------------------------------
 class PlantBatch:
     """``B`` independent plants with the same line grid, stepped together by
-    :func:`pneugym.physics.system.advance_batch` (parallel over plants with numba ``prange``)."""
+    :func:`pneugym.physics.batch.advance_batch` (parallel over plants with numba ``prange``)."""
 
     def __init__(self, params: Sequence[RigParams]):
         if isinstance(params, RigParams) or not isinstance(params, Sequence):
