@@ -13,7 +13,9 @@ import dataclasses
 import difflib
 import math
 import numbers
+import os
 from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
 from typing import Any, Mapping
 
 #: Thesis Fig. 3.6: main-valve switching delay [s] against supply gauge pressure [Pa].
@@ -430,7 +432,25 @@ class RigParams:
         return replace(self, **kw)
 
     def to_dict(self) -> dict[str, Any]:
+        """Every field as plain data: the top-level numbers and one dict per group (the
+        parameter form of a rig file, :mod:`pneugym.rigfile`); :meth:`from_dict` inverts it."""
         return dataclasses.asdict(self)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], base: "RigParams | None" = None) -> "RigParams":
+        """The rig in a rig file (``.json``, ``.yaml``, ``.yml``; :func:`pneugym.rigfile.load`):
+        the parameter form, the measurement form or a measured run's JSON; what the file does
+        not give keeps ``base`` (default: the thesis rig). Refusals name the file and the key."""
+        from .rigfile import load
+
+        return load(path, base)
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write this rig to a ``.json``, ``.yaml`` or ``.yml`` file, atomically; returns its
+        ``Path``. :meth:`load` gives back an equal rig (:func:`pneugym.rigfile.save`)."""
+        from .rigfile import save
+
+        return save(self, path)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RigParams":
