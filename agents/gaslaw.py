@@ -7,8 +7,12 @@
 (breakaway friction, bore, dead volume); its factor ``K`` must be retuned whenever load, supply or
 friction change. Here ``K`` is calibrated per supply pressure on the nominal rig by a sweep
 (:func:`calibrate`; the thesis tuned it by trial) and interpolated on the supply set-point.
+On another rig the rule takes that rig's bore, dead volume and breakaway friction (its rig file's
+values), and its K is calibrated on that rig (``--rig``).
 
-``python -m agents.gaslaw`` re-runs the calibration and writes ``agents/gaslaw_k.json`` and a plot.
+``python -m agents.gaslaw`` re-runs the calibration and writes ``agents/gaslaw_k.json`` and a plot;
+``python -m agents.gaslaw --rig my_rig.yaml --out runs/my_rig/gaslaw_k.json`` calibrates K for
+another rig (``evaluate.py --policies gaslaw_mine=runs/my_rig/gaslaw_k.json`` runs it).
 """
 from __future__ import annotations
 
@@ -29,10 +33,40 @@ CALIBRATION_FILE = Path(__file__).with_name("gaslaw_k.json")
 THESIS_K = {"experiment": {1.5: 0.1, 2.5: 0.2}, "simulation": {1.5: 2.2, 2.5: 1.2}}
 
 
+MAX_CALIBRATION_BYTES = 1 << 20
+
+
+def read_calibration(path: Path | str = CALIBRATION_FILE) -> dict[str, Any]:
+    """A calibration file's content, checked: a JSON object whose ``table`` lists
+    ``{"supply_bar_gauge", "k"}`` rows of finite numbers (K >= 0), and whose ``rig``, if any, is a
+    valid rig. ValueError names the file."""
+    p = Path(path)
+    if p.stat().st_size > MAX_CALIBRATION_BYTES:
+        raise ValueError(f"{p}: {p.stat().st_size:,} bytes is too large for a Gas-Law calibration "
+                         f"(at most {MAX_CALIBRATION_BYTES:,})")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{p}: not a Gas-Law calibration (JSON): {exc}") from None
+    table = data.get("table") if isinstance(data, dict) else None
+    ok = isinstance(table, list) and table and all(
+        isinstance(r, dict) and all(isinstance(r.get(k), (int, float)) and not isinstance(
+            r.get(k), bool) and math.isfinite(r[k]) for k in ("supply_bar_gauge", "k"))
+        and r["k"] >= 0 for r in table)
+    if not ok:
+        raise ValueError(f"{p}: not a Gas-Law calibration: expected a 'table' of "
+                         f"{{supply_bar_gauge, k}} rows (finite numbers, k >= 0), as "
+                         f"python -m agents.gaslaw writes")
+    if data.get("rig") is not None:
+        from pneugym.rigfile import as_rig
+
+        as_rig(data["rig"], f"{p}: its rig")
+    return data
+
+
 def load_calibration(path: Path | str = CALIBRATION_FILE) -> dict[float, float]:
     """``{supply_bar_gauge: K}`` from a calibration file."""
-    with open(path) as f:
-        data = json.load(f)
+    data = read_calibration(path)
     return {float(r["supply_bar_gauge"]): float(r["k"]) for r in data["table"]}
 
 
@@ -80,6 +114,12 @@ class GasLawPolicy(Policy):
         p_st = self.rig.friction.static_n / self._area
         self._p_st = p_st if pressure == "gauge" else p_st + self._pa
 
+    @classmethod
+    def for_env(cls, env, **kwargs: Any) -> "GasLawPolicy":
+        """The rule for ``env``'s rig (its bore, dead volume and breakaway friction)."""
+        u = env.unwrapped
+        return cls(u.observation_layout(), **{"rig": u.rig, **kwargs})
+
     def k_for(self, supply_gauge_pa: np.ndarray) -> np.ndarray:
         """K for each supply set-point [Pa gauge]."""
         if self._k_bar is None:
@@ -99,59 +139,82 @@ class GasLawPolicy(Policy):
 
 def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] | None = None,
           seed: int = 0, **policy_kwargs: Any) -> np.ndarray:
-    """The episode return of the Gas-Law rule for each K on the nominal rig (10 kg) at
-    ``supply_bar`` gauge: one batched run, one sub-environment per K."""
+    """The episode return of the Gas-Law rule for each K on the rig of ``env_config`` (default
+    the thesis rig) with its load (10 kg for the thesis rig) at ``supply_bar`` gauge: one batched
+    run, one sub-environment per K."""
     from pneugym.envs import Conditions
     from pneugym.envs.cutoff import CutOffVectorEnv
 
     ks = np.asarray(ks, dtype=float)
     env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **dict(env_config or {}))
     pol = GasLawPolicy(env.observation_layout(), k=ks, rig=env.rig, **policy_kwargs)
-    cond = Conditions(supply_pressure_gauge_pa=supply_bar * 1e5)
+    cond = Conditions(supply_pressure_gauge_pa=supply_bar * 1e5, load_mass_kg=env.rig.load_mass_kg)
     return run_first_episodes(env, pol, [cond] * ks.size, seed)["objective"]
 
 
 def calibrate(supplies_bar: Sequence[float] = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0),
               ks: Sequence[float] | None = None, env_config: Mapping[str, Any] | None = None,
-              seed: int = 0, **policy_kwargs: Any) -> dict[str, Any]:
-    """Best K per supply pressure: the highest episode return on the nominal rig (10 kg).
+              seed: int = 0, progress: bool = True, **policy_kwargs: Any) -> dict[str, Any]:
+    """Best K per supply pressure: the highest episode return on the rig of ``env_config``
+    (default the thesis rig, 10 kg) at its load; the result records the rig.
     (Choosing the best return averaged with its grid neighbours instead, for a broader
     optimum, did worse on the robustness suite: oracle fraction 0.839 against 0.896.)"""
     from tqdm import tqdm
 
     ks = np.geomspace(0.02, 20.0, 64) if ks is None else np.asarray(ks, dtype=float)
     table, curves = [], {}
-    for p in tqdm(supplies_bar, desc="Gas-Law K sweep", unit="pressure"):
+    for p in tqdm(supplies_bar, desc="Gas-Law K sweep", unit="pressure", disable=not progress):
         j = sweep(p, ks, env_config, seed, **policy_kwargs)
         i = int(np.argmax(j))
         table.append({"supply_bar_gauge": float(p), "k": float(ks[i]), "return": float(j[i])})
         curves[str(p)] = [float(v) for v in j]
-    return {"table": table, "k_grid": [float(v) for v in ks], "returns": curves,
-            "thesis_k": {k: {str(p): v for p, v in d.items()} for k, d in THESIS_K.items()},
-            "env_config": dict(env_config or {}), "policy": dict(policy_kwargs), "seed": seed}
+    from pneugym.rigfile import as_rig
+
+    cfg = dict(env_config or {})
+    rig = cfg.pop("rig", None)
+    out = {"table": table, "k_grid": [float(v) for v in ks], "returns": curves,
+           "thesis_k": {k: {str(p): v for p, v in d.items()} for k, d in THESIS_K.items()},
+           "env_config": cfg, "policy": dict(policy_kwargs), "seed": seed}
+    if rig is not None:
+        out["rig"] = as_rig(rig).to_dict()
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         epilog="examples:\n  pneugym gaslaw                       # writes agents/gaslaw_k.json\n"
-               "  pneugym gaslaw --out /tmp/k.json --plot /tmp/k.png --seed 1",
+               "  pneugym gaslaw --out /tmp/k.json --plot /tmp/k.png --seed 1\n"
+               "  pneugym gaslaw --rig my_rig.yaml --out runs/my_rig/gaslaw_k.json "
+               "--plot runs/my_rig/gaslaw_k.png",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(CALIBRATION_FILE), metavar="FILE",
                     help="calibration JSON (default: the K table the Gas-Law policy reads)")
     ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
     ap.add_argument("--seed", type=int, default=0, help="seed of the sweep's episodes (0)")
+    ap.add_argument("--rig", default=None, metavar="FILE",
+                    help="calibrate K for this rig (a rig file; default the thesis rig); give "
+                         "--out too, so that the shipped table stays the thesis rig's")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     from pneugym.outputs import atomic_write_json, check_output_file
     from pneugym.provenance import provenance
 
     try:  # before the calibration: an unusable path must not cost the run
+        env_config = {}
+        if args.rig is not None:
+            from pneugym.rigfile import as_rig
+
+            env_config["rig"] = as_rig(args.rig, "--rig")
+            if Path(args.out).resolve() == CALIBRATION_FILE.resolve():
+                raise ValueError(f"--rig calibrates K for another rig: give --out FILE (the "
+                                 f"default {CALIBRATION_FILE} is the shipped thesis-rig table)")
         check_output_file(args.out, "--out")
         if args.plot:
             check_output_file(args.plot, "--plot")
     except ValueError as exc:
         ap.error(str(exc))
-    result = calibrate(seed=args.seed)
+    result = calibrate(env_config=env_config, seed=args.seed, progress=not args.no_progress)
     result["provenance"] = provenance()
     atomic_write_json(args.out, result)
     print(f"{'supply [bar g]':>14} {'K calibrated':>12} {'return':>8}   thesis K (rig / sim)")
@@ -168,7 +231,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             ax.semilogx(result["k_grid"], j, label=f"{p} bar")
         ax.set_ylim(-2.0, 0.0)
         ax.set_xlabel("K"), ax.set_ylabel("episode return (objective)")
-        ax.set_title("Gas-Law rule on the nominal rig"), ax.legend(), ax.grid(alpha=0.3)
+        where = "the thesis rig" if args.rig is None else Path(args.rig).name
+        ax.set_title(f"Gas-Law rule on {where}"), ax.legend(), ax.grid(alpha=0.3)
         fig.savefig(args.plot, dpi=120, bbox_inches="tight")
         print(f"wrote {args.out} and {args.plot}")
 

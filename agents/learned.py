@@ -213,6 +213,7 @@ class LearnedPolicy(Policy):
     def __init__(self, env_layout: Mapping[str, Any], model_layout: Mapping[str, Any],
                  source: str = "the model"):
         super().__init__(env_layout)
+        self.source = source
         self.model_layout = dict(model_layout)
         stack = check_layout(model_layout, env_layout, source)
         nf = len(env_layout["features"])

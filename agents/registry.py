@@ -65,9 +65,52 @@ def _decision(f: Path, saved: Any, override: Any) -> Any:
     return check_decision(over, f"{f}: the decision override")
 
 
+class RigMismatchWarning(UserWarning):
+    """A trained policy is run on a rig other than the one it was trained on."""
+
+
+def trained_rig(policy: Policy, run: dict | None):
+    """The rig ``policy`` was trained on: its ESAC metadata's, else its run's ``config.rig``, else
+    the thesis rig (a run without a rig trained on the thesis rig)."""
+    from pneugym.params import RigParams
+    from pneugym.rigfile import as_rig
+
+    rig = getattr(policy, "trained_rig", None)
+    if rig is None:
+        rig = ((run or {}).get("config") or {}).get("rig")
+    try:
+        return as_rig(rig) if rig is not None else RigParams()
+    except ValueError as exc:
+        raise ValueError(f"{getattr(policy, 'source', 'the model')}: the rig it records is not a "
+                         f"valid rig: {exc}") from None
+
+
+def check_rig(policy: Policy, run: dict | None, env) -> None:
+    """Warn (:class:`RigMismatchWarning`) when ``env``'s rig differs from the one ``policy`` was
+    trained on, naming the differences; operating-point fields (supply, load) are not part of a
+    rig's identity (the conditions set them)."""
+    import warnings
+
+    from pneugym.rigfile import describe_difference
+
+    trained = trained_rig(policy, run)
+    policy.trained_rig = trained
+    here = env.unwrapped.rig
+    point = {"supply_pressure_gauge_pa": here.supply_pressure_gauge_pa,
+             "load_mass_kg": here.load_mass_kg,
+             "effects": {"sensor_lag_s": here.effects.sensor_lag_s}}
+    diff = describe_difference(trained.with_(**point), here)
+    if diff:
+        warnings.warn(f"{getattr(policy, 'source', 'the model')} was trained on another rig; "
+                      f"this environment's differs: {diff} (retrain it for this rig: pneugym "
+                      f"train --rig FILE)", RigMismatchWarning, stacklevel=3)
+
+
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
-    """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``) or a
-    stable-baselines3 ``.zip`` (PPO, DQN or A2C). The model's observation layout (recorded in the
+    """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``), a
+    stable-baselines3 ``.zip`` (PPO, DQN or A2C) or a Gas-Law K calibration (``.json``, from
+    ``python -m agents.gaslaw --out``). A model trained on another rig than ``env``'s is loaded
+    with a :class:`RigMismatchWarning` naming the differences. The model's observation layout (recorded in the
     file, or in its run's ``run.json``) must match the environment's up to the history, else a
     :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` override the ESAC
     rule's parameters, or (``decision=``, a dict of ``rule`` and/or ``value``, and nothing
@@ -84,6 +127,17 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
         raise FileNotFoundError(f"no saved model at {path}")
     f = _model_file(p)
     layout = env.unwrapped.observation_layout()
+    if f.suffix.lower() == ".json":  # a Gas-Law K calibration (python -m agents.gaslaw --out)
+        from .gaslaw import read_calibration
+
+        if kwargs:
+            raise ValueError(f"{f} is a Gas-Law calibration: it takes no overrides, got "
+                             f"{sorted(kwargs)}")
+        data = read_calibration(f)
+        pol = GasLawPolicy.for_env(env, k={r["supply_bar_gauge"]: r["k"] for r in data["table"]})
+        pol.source, pol.trained_rig = f"Gas-Law calibration {f}", data.get("rig")
+        check_rig(pol, None, env)
+        return pol
     run = read_run(f.parent)
     from . import esac
 
@@ -92,7 +146,9 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
             raise ValueError(f"{f} is an ESAC model: rule= and value= override the decision "
                              f"of a stable-baselines3 model; ESAC's rule parameters are "
                              f"{sorted(esac.RULE_PARAMETERS)}")
-        return esac.load_policy(f, layout, **kwargs)
+        pol = esac.load_policy(f, layout, **kwargs)
+        check_rig(pol, run, env)
+        return pol
     if not zipfile.is_zipfile(f):
         raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
                          f"(.pt)")
@@ -110,7 +166,10 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
                      layout=run_layout)
     model_layout = model.__dict__.get("pneugym_layout") or run_layout
     decision = _decision(f, model.__dict__.get("pneugym_decision"), kwargs.get("decision"))
-    return SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
+    pol = SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
+    check_rig(pol, run, env)
+    return pol
 
 
-__all__ = ["BASELINES", "make_policy", "load_policy", "SB3Policy", "LayoutMismatchError"]
+__all__ = ["BASELINES", "make_policy", "load_policy", "SB3Policy", "LayoutMismatchError",
+           "RigMismatchWarning", "check_rig", "trained_rig"]

@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate": ("pneugym.validate", "the plant's validation report against the thesis's figures"),
     "calibrate": ("pneugym.calibrate", "fit the rig parameters the thesis does not give"),
     "gaslaw": ("agents.gaslaw", "calibrate the Gas-Law rule's K per supply pressure"),
+    "rig": ("pneugym.rigfile", "check a rig file and show how it differs from the thesis rig"),
 }
 
 

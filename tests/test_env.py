@@ -536,6 +536,10 @@ def test_bad_reset_options_are_refused(options, msg):
         CutOffEnv().reset(seed=0, options=options)
 
 
-def test_rig_must_be_rig_params():
-    with pytest.raises(ValueError, match="RigParams.from_dict"):
-        CutOffEnv(rig={"load_mass_kg": 3.0})
+def test_rig_is_params_a_dict_or_a_file_and_nothing_else():
+    env = CutOffEnv(rig={"load_mass_kg": 3.0})
+    assert env.rig.load_mass_kg == 3.0
+    assert env.reset(seed=0)[1]["conditions"]["load_mass_kg"] == 3.0  # its operating point
+    for bad in (3.0, ["a"], b"rig.json"):
+        with pytest.raises(ValueError, match="rig"):
+            CutOffEnv(rig=bad)

@@ -14,8 +14,8 @@ from agents.training import ondemand
 def test_learned_names_resolve_to_trained_models(tmp_path, monkeypatch):
     seen = {}
 
-    def fake(names, runs, budget, progress=True):
-        seen.update(names=list(names), runs=runs, budget=budget, progress=progress)
+    def fake(names, runs, budget, progress=True, rig=None):
+        seen.update(names=list(names), runs=runs, budget=budget, progress=progress, rig=rig)
         return {n: Path(runs) / n / "model.zip" for n in names}
 
     monkeypatch.setattr(training, "ensure_trained", fake)
@@ -23,9 +23,11 @@ def test_learned_names_resolve_to_trained_models(tmp_path, monkeypatch):
     assert out == ["conventional", f"ppo={tmp_path / 'ppo' / 'model.zip'}",
                    f"esac={tmp_path / 'esac' / 'model.zip'}", "x=m.zip"]
     assert seen == {"names": ["ppo", "esac"], "runs": str(tmp_path), "budget": "quick",
-                    "progress": True}
+                    "progress": True, "rig": None}
     specs.resolve_learned(["ppo"], str(tmp_path), "quick", progress=False)  # --no-progress
     assert seen["progress"] is False
+    specs.resolve_learned(["ppo"], str(tmp_path), "quick", rig="my_rig.yaml")  # --rig
+    assert seen["rig"] == "my_rig.yaml"
     assert specs.resolve_learned(["gaslaw"], str(tmp_path), "quick") == ["gaslaw"]
 
 

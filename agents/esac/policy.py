@@ -141,7 +141,9 @@ def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) ->
     rule = check_rule(rule, f"ESAC model {path}: the rule override")
     pred, meta = load(path)
     params = {**RULE_DEFAULTS, **meta.get("rule", {}), **rule}
-    return ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
+    pol = ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
+    pol.trained_rig = meta.get("rig")  # a RigParams dict; None: the thesis rig
+    return pol
 
 
 

@@ -5,6 +5,7 @@ examples:
   pneugym evaluate --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
       --suite robustness --episodes 3 --seed 1000000 --out results
   pneugym evaluate --policies gaslaw esac=runs/esac esac10=runs/esac:max_time_increase=0.1
+  pneugym evaluate --rig my_rig.yaml --runs runs/my_rig   # on your rig (policies trained for it)
   python evaluate.py --policies gaslaw --no-progress   # the same command, from a checkout
 
 Suites (sensor noise 0.03 mm / 400 Pa in every episode):
@@ -27,6 +28,7 @@ import sys
 from typing import Any, Sequence
 
 from pneugym.outputs import check_output_dir
+from pneugym.rigfile import as_rig
 
 from .outputs import print_table, write_outputs
 from .run import evaluate
@@ -51,6 +53,10 @@ def parser() -> argparse.ArgumentParser:
                     help=f"seed of the episodes (default {EVAL_SEED:,}; keep >= {EVAL_SEED:,})")
     ap.add_argument("--out", default="results",
                     help="folder for results.json, results.csv and the plots")
+    ap.add_argument("--rig", default=None, metavar="FILE",
+                    help="rig file to evaluate on (default the thesis rig); learned policies "
+                         "trained on demand are trained on it; a model trained on another rig "
+                         "runs as it is, with a warning naming the differences")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bars (evaluation, and training on demand)")
     return ap
@@ -68,8 +74,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         ap.error(f"--seed {args.seed}: episode seeds must be integers from 0 to 2**63 - 1; "
                  f"held-out results use {EVAL_SEED:,} and up")
     try:  # before any work: a wrong name, an unusable model or --out must not cost a training
+        env_config = {} if args.rig is None else {"rig": as_rig(args.rig, "--rig")}
         check_policy_specs(args.policies)
-        preloaded = load_models(args.policies, args.runs, args.budget)
+        preloaded = load_models(args.policies, args.runs, args.budget, env_config)
         check_output_dir(args.out, "--out")  # the string as given: "" is not the current folder
     except (ValueError, OSError) as exc:
         ap.error(str(exc))
@@ -78,9 +85,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
               f"(below {EVAL_SEED:,}); figures on it are not held-out results", file=sys.stderr)
     suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
     progress = not args.no_progress
-    policies = resolve_learned(args.policies, args.runs, args.budget, progress)
-    results = evaluate(policies, suites, args.episodes, args.seed, preloaded=preloaded,
-                       progress=progress)
+    policies = resolve_learned(args.policies, args.runs, args.budget, progress,
+                               env_config.get("rig"))
+    results = evaluate(policies, suites, args.episodes, args.seed, env_config=env_config,
+                       preloaded=preloaded, progress=progress)
     print_table(results)
     write_outputs(results, args.out)
     print(f"\nwrote {args.out}/results.json, results.csv and plots")

@@ -64,7 +64,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     preloaded = dict(preloaded or {})
     results: dict[str, Any] = {"suites": {}}
     for suite in suites:
-        eps = suite_episodes(suite, episodes, seed)
+        eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
         conds = [c for _, c in eps]
         records: dict[str, list[dict[str, Any]]] = {}
         wall: dict[str, float] = {}
@@ -98,7 +98,8 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
                          "seed": seed, "env_config": {k: repr(v) if not isinstance(
                              v, (int, float, str, bool, type(None))) else v
-                             for k, v in env_config.items()},
+                             for k, v in env_config.items() if k != "rig"},
+                         "rig": probe.rig.to_dict(),
                          "sensor_noise": NOISE}
     results["seed"] = seed
     prov = provenance()

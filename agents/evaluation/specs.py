@@ -105,7 +105,8 @@ def load_models(specs: Sequence[str], runs: str | Path = "runs", budget: str = "
     if bare:
         from agents import training
 
-        for name, (what, p) in training.training_plan(bare, runs, budget).items():
+        rig = (env_config or {}).get("rig")
+        for name, (what, p) in training.training_plan(bare, runs, budget, rig).items():
             if what == "ready":
                 todo.append((name, name, p, {}))
     for spec in specs:
@@ -120,16 +121,16 @@ def load_models(specs: Sequence[str], runs: str | Path = "runs", budget: str = "
     return out
 
 
-def resolve_learned(policies: Sequence[str], runs: str, budget: str, progress: bool = True
-                    ) -> list[str]:
+def resolve_learned(policies: Sequence[str], runs: str, budget: str, progress: bool = True,
+                    rig: Any = None) -> list[str]:
     """Bare names of learned policies become ``NAME=PATH`` of their model under ``runs``,
-    trained first (train.py's ``budget``) where none is there yet."""
+    trained first (train.py's ``budget``, on ``rig``) where none is there yet."""
     names = [p for p in policies if p in LEARNED]
     if not names:
         return list(policies)
     from agents import training
 
-    paths = training.ensure_trained(names, runs, budget, progress=progress)
+    paths = training.ensure_trained(names, runs, budget, progress=progress, rig=rig)
     return [f"{p}={paths[p]}" if p in paths else p for p in policies]
 
 

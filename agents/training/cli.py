@@ -8,6 +8,7 @@ examples:
   pneugym train --algo ppo --out runs/ppo --resume   # continue from the last checkpoint
   pneugym train --algo ppo --budget quick            # the quick budget of configs/ppo.yaml
   pneugym train --algo ppo --set algo.learning_rate=1e-4 --set env.history=8
+  pneugym train --algo esac --rig my_rig.yaml --out runs/my_rig/esac   # for your rig
   python train.py --algo ppo                         # the same command, from a checkout
 
 Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``quick`` one that
@@ -56,6 +57,10 @@ def parser() -> argparse.ArgumentParser:
                     help="environment steps (ppo, dqn) or training rollouts (esac)")
     ap.add_argument("--seed", type=int, default=0, help="training seed (< 1,000,000)")
     ap.add_argument("--out", default=None, help="run directory (default runs/<algo>)")
+    ap.add_argument("--rig", default=None, metavar="FILE",
+                    help="rig file (JSON/YAML: RigParams fields, a measured run's rig section, "
+                         "or the discrepancy workflow's updated_model.json); default the thesis "
+                         "rig")
     ap.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
     ap.add_argument("--budget", default="default", help="section of the config (default, quick)")
     ap.add_argument("--config", default=None, help="YAML file (default configs/<algo>.yaml)")
@@ -81,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     try:
         run = train(args.algo, out, args.preset, args.timesteps, args.seed, args.resume,
                     args.budget, args.config, args.set, not args.no_progress, args.force,
-                    args.trust_pickled_replay_buffer)
+                    args.trust_pickled_replay_buffer, rig=args.rig)
     except ValueError as exc:
         ap.error(str(exc))
     except TrainingInterrupted as exc:

@@ -36,10 +36,11 @@ class ConfigError(ValueError):
 def load_config(algo: str, budget: str = "default", path: str | Path | None = None,
                 overrides: Sequence[str] = (), *, preset: str | None = None,
                 timesteps: int | None = None, seed: int | None = None,
-                check: bool = True) -> dict[str, Any]:
+                rig: Any = None, check: bool = True) -> dict[str, Any]:
     """The configuration of ``algo``: ``configs/<algo>.yaml``'s ``default`` section, merged with the
     ``budget`` section (e.g. ``quick``), then ``overrides`` (``"a.b=value"``, value parsed as YAML),
-    ``preset`` and ``timesteps`` (``--preset``, ``--timesteps``). With ``check`` the whole merged
+    ``preset``, ``timesteps`` and ``rig`` (``--preset``, ``--timesteps``, ``--rig``: a rig file's
+    path, a mapping or a :class:`~pneugym.params.RigParams`; recorded whole). With ``check`` the whole merged
     configuration is checked (:func:`check_config`; ``seed``: the training seed, for the seed
     ranges); any problem is a :class:`ConfigError`."""
     import yaml
@@ -103,6 +104,11 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
         cfg["preset"], origins["preset"] = preset, "--preset"
     if timesteps is not None:
         cfg["timesteps"], origins["timesteps"] = timesteps, "--timesteps"
+    if rig is not None:
+        from pneugym.params import RigParams
+
+        cfg["rig"] = rig.to_dict() if isinstance(rig, RigParams) else rig
+        origins["rig"] = f"--rig {rig}" if not isinstance(rig, (RigParams, Mapping)) else "--rig"
     cfg["algo_name"] = algo
     cfg["budget"] = budget
     if check:
@@ -269,7 +275,7 @@ def check_config(cfg: dict[str, Any], algo: str, seed: int | None = None,
 
     opts = {k: v for k, v in env.items() if k != "num_envs"}
     try:  # the environment checks its own options
-        CutOffVectorEnv(num_envs=1, preset=cfg["preset"],
+        CutOffVectorEnv(num_envs=1, preset=cfg["preset"], rig=cfg.get("rig"),
                         observe_params=bool(cfg.get("privileged_critic")), **opts)
     except (ValueError, TypeError) as exc:
         keys = [k for k in opts if k in str(exc)] or list(opts) or ["env"]

@@ -34,16 +34,19 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     if seed < int(test["seed"]) + int(test["episodes"]) and int(test["seed"]) < seed + n_train:
         raise ValueError(f"training seeds {seed}..{seed + n_train - 1} overlap the held-out test "
                          f"seeds from {test['seed']}: choose another --seed")
-    env_cfg = {"history": history}
+    env_cfg: dict[str, Any] = {"history": history}
+    if cfg.get("rig") is not None:
+        env_cfg["rig"] = cfg["rig"]
+    rig_cfg = {k: v for k, v in env_cfg.items() if k != "history"}
     layout = CutOffVectorEnv(num_envs=1, **env_cfg).observation_layout()
     t0 = time.perf_counter()
     print(f"rollouts: {n_train} for training, {test['episodes']} held out (cached in {cache})",
           flush=True)
     lags = tuple(int(k) for k in cfg.get("lags", esac.LAGS))
-    data = esac.rollouts(cache, n_train, seed, history, cfg["preset"], lags=lags,
-                         progress=progress)
-    held = esac.rollouts(cache, int(test["episodes"]), int(test["seed"]), history, cfg["preset"],
+    data = esac.rollouts(cache, n_train, seed, history, cfg["preset"], env_config=rig_cfg,
                          lags=lags, progress=progress)
+    held = esac.rollouts(cache, int(test["episodes"]), int(test["seed"]), history, cfg["preset"],
+                         env_config=rig_cfg, lags=lags, progress=progress)
     t_data = time.perf_counter() - t0
     stroke = float(layout["features"][0]["scale"])
     fit = cfg["fit"]
@@ -64,12 +67,13 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     print("held-out accuracy: " + ", ".join(
         f"{k} {v:.4g}" for k, v in acc.items() if isinstance(v, float)), flush=True)
     # the rule: tuned on the validation conditions
-    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]))
+    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]),
+                                  cfg.get("rig"))
     grid_cfg = cfg["rule_grid"]
     keys = list(grid_cfg)
     grid = [dict(zip(keys, vals)) for vals in itertools.product(*(grid_cfg[k] for k in keys))]
     t1 = time.perf_counter()
-    sweep = esac.sweep_rule(pred, conds, grid, seed=int(val["seed"]))
+    sweep = esac.sweep_rule(pred, conds, grid, env_config=rig_cfg, seed=int(val["seed"]))
     refs = validation_references(conds, {**env_cfg, "preset": cfg["preset"]}, int(val["seed"]),
                                  cache)
     best = choose_decision(sweep, float(cfg.get("prefer_saving_within", 0.0)),
@@ -82,7 +86,7 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     t_sweep = time.perf_counter() - t1
     meta = {"n_in": int(x.shape[1]), "hidden": list(fit["hidden"]), "layout": layout,
             "delay_input": delay_input, "lookahead_s": lookahead_s,
-            "rule": rule, "accuracy": acc, "fit": {k: v for k, v in hist.items()
+            "rule": rule, "rig": cfg.get("rig"), "accuracy": acc, "fit": {k: v for k, v in hist.items()
                                                     if k not in ("train", "val")},
             "data": {"train_rollouts": int(data["obs"].shape[0]), "samples": int(x.shape[0]),
                      "seed": seed,

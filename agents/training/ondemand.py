@@ -4,7 +4,7 @@ training (:func:`training_plan`), and the training of those missing (:func:`ensu
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from .config import ALGOS, load_config
 from .resume import occupied, resumable, resume_seed
@@ -26,13 +26,13 @@ def model_path(run_dir: str | Path) -> Path | None:
 
 
 def training_plan(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path = "runs",
-                  budget: str = "quick") -> dict[str, tuple[str, Path]]:
+                  budget: str = "quick", rig: Any = None) -> dict[str, tuple[str, Path]]:
     """What :func:`ensure_trained` will do for each of ``names``: ``("ready", model file)``,
     ``("train", run dir)`` or ``("resume", run dir)``, checked before any training starts:
     ``runs_dir`` and each run folder must be folders, a run to train must have a usable folder
     and configuration (``budget``), a run to resume a checkpoint and a training seed. Raises
     ValueError (a :class:`~agents.learned.RunFileError` for a damaged run.json) naming what is
-    wrong."""
+    wrong. ``rig``: the rig a missing policy is trained on (a finished run is used as it is)."""
     runs = Path(runs_dir)
     if runs.exists() and not runs.is_dir():
         raise ValueError(f"--runs {runs_dir} is a file; learned policies live in (and are "
@@ -47,7 +47,7 @@ def training_plan(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path 
                              f"file, or give another --runs")
         p = model_path(d) if d.is_dir() else None
         # a budget or configuration train() would refuse (checked whole only if it will train)
-        load_config(name, budget, seed=0, check=p is None)
+        load_config(name, budget, seed=0, rig=rig, check=p is None)
         if p is not None:
             plan[name] = ("ready", p)
             continue
@@ -67,20 +67,22 @@ def training_plan(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path 
 
 
 def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path = "runs",
-                   budget: str = "quick", seed: int = 0, progress: bool = True
-                   ) -> dict[str, Path]:
+                   budget: str = "quick", seed: int = 0, progress: bool = True,
+                   rig: Any = None) -> dict[str, Path]:
     """The model of each of ``names`` under ``runs_dir/<name>``, training those that are missing
     with ``budget`` (evaluate.py's train-on-demand; an interrupted run is resumed). Every run is
-    checked (:func:`training_plan`) before the first training starts."""
+    checked (:func:`training_plan`) before the first training starts. ``rig``: the rig to train
+    the missing ones on (default the thesis rig)."""
     paths = {}
-    for name, (what, p) in training_plan(names, runs_dir, budget).items():
+    for name, (what, p) in training_plan(names, runs_dir, budget, rig).items():
         if what == "ready":
             paths[name] = p
             continue
         print(f"== no trained {name} under {p}: "
               f"{'resuming' if what == 'resume' else 'training'} it ({budget} budget)",
               flush=True)
-        train(name, p, seed=seed, budget=budget, progress=progress, resume=what == "resume")
+        train(name, p, seed=seed, budget=budget, progress=progress, resume=what == "resume",
+              rig=rig)
         m = model_path(p)
         if m is None:
             raise RuntimeError(f"training {name} into {p} did not leave a finished model")

@@ -114,6 +114,8 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     env_cfg = dict(cfg.get("env", {}))
     num_envs = int(env_cfg.pop("num_envs", 16))
     env_cfg["preset"] = cfg["preset"]
+    if cfg.get("rig") is not None:
+        env_cfg["rig"] = cfg["rig"]
     asym = bool(cfg.get("privileged_critic", False))
     if asym and algo != "ppo":
         raise ValueError("privileged_critic needs an actor-critic (ppo)")
@@ -125,7 +127,8 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     sweep_cfg = {k: v for k, v in env_cfg.items() if k != "observe_params"}
     val = cfg["validation"]
     check_seed("validation", int(val["seed"]), int(val["episodes"]))
-    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]))
+    conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]),
+                                  cfg.get("rig"))
     eval_env = TrainingVecEnv(conditions=conds, seed=int(val["seed"]), **env_cfg)
     print(f"validation references ({len(conds)} conditions, conventional and oracle) ...",
           flush=True)

@@ -67,15 +67,28 @@ _SB3_SPECS = {
 }
 
 
+def _rig(v: Any) -> Any:
+    """The rig to train on: a rig file's path or a mapping of its fields, normalised to
+    :meth:`pneugym.params.RigParams.to_dict` (so that ``run.json`` records the whole rig)."""
+    from pneugym.rigfile import as_rig
+
+    if v is None:
+        return None
+    try:
+        return as_rig(v, "rig").to_dict()
+    except ValueError as exc:
+        raise Bad(f"a rig file or a mapping of rig fields ({exc})") from None
+
+
 def config_schema(algo: str) -> Section:
     """Every key a configuration of ``algo`` may hold, with its check."""
     from agents import esac
     from agents.learned import MAX_HISTORY
-    from pneugym.envs.conditions import PRESETS
+    from pneugym.envs.conditions import PRESET_NAMES
 
     seed_spec = integer(0, MAX_TRAINING_SEED - 1)
     common = {
-        "preset": choice(sorted(PRESETS)), "timesteps": integer(1, 10 ** 12),
+        "preset": choice(PRESET_NAMES), "timesteps": integer(1, 10 ** 12), "rig": _rig,
         "validation": Section({"episodes": integer(1, 100_000), "seed": seed_spec},
                               "validation entry", required=("episodes", "seed")),
         "numba_threads": integer(1, 1024), "torch_threads": integer(1, 1024), "cache_dir": text,
@@ -126,7 +139,7 @@ def config_schema(algo: str) -> Section:
     env_refused = {
         "preset": "is the top-level preset (or --preset)",
         "observe_params": "is set by privileged_critic (the critic's privileged features)",
-        "rig": "cannot be given in a config (the environment's rig is the thesis's)"}
+        "rig": "is the top-level rig (or --rig)"}
     # the values of the other options are checked by the environment (check_config builds it)
     env = {k: anything for k in ENV_OPTIONS if k not in env_refused}
     env.update(num_envs=integer(1, 4096), history=integer(1, MAX_HISTORY),

@@ -30,7 +30,7 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
           seed: int = 0, resume: bool = False, budget: str = "default",
           config: str | Path | None = None, overrides: Sequence[str] = (),
           progress: bool = True, force: bool = False,
-          trust_pickled_replay_buffer: bool = False) -> dict[str, Any]:
+          trust_pickled_replay_buffer: bool = False, rig: Any = None) -> dict[str, Any]:
     """Train ``algo`` into ``out``; returns the final ``run.json`` content.
 
     The configuration is checked whole before anything is written
@@ -43,7 +43,9 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     SIGINT or SIGTERM stop training at the next step: the last checkpoint is saved, ``run.json``
     records ``status: "interrupted"`` and :class:`TrainingInterrupted` is raised. DQN replay
     buffers of older runs (pickles) are loaded on resume only with
-    ``trust_pickled_replay_buffer`` (only for your own runs)."""
+    ``trust_pickled_replay_buffer`` (only for your own runs). ``rig``: the rig to train on (a rig
+    file, a mapping or a :class:`~pneugym.params.RigParams`; default the configuration's, else
+    the thesis rig), recorded whole in ``run.json``'s ``config.rig``."""
     from pneugym.outputs import check_output_dir
     from pneugym.provenance import provenance
 
@@ -54,11 +56,15 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     check_seed("training", seed)
     # the whole configuration, checked before anything is written
     cfg = load_config(algo, budget, config, overrides, preset=preset, timesteps=timesteps,
-                      seed=None if resume else seed)
+                      seed=None if resume else seed, rig=rig)
     raw_out, out = out, Path(out)
     if out.exists() or not resume:
         check_output_dir(raw_out, "run folder (--out)")
     prev = read_run(out) if out.is_dir() else None
+    if resume and rig is None and "rig" not in cfg and (prev or {}).get("config", {}).get("rig"):
+        # the run's rig stays: resuming without --rig must not switch to the thesis rig
+        cfg = load_config(algo, budget, config, overrides, preset=preset, timesteps=timesteps,
+                          rig=prev["config"]["rig"])
     if resume:
         resumable(out, prev, algo)
         old = resume_seed(out, prev)

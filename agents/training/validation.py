@@ -16,11 +16,14 @@ import numpy as np
 from .rundir import atomic_write_json
 
 
-def validation_conditions(preset: str, n: int, seed: int) -> list:
-    """``n`` fixed conditions drawn from ``preset`` (each from ``default_rng([seed, i])``)."""
+def validation_conditions(preset: str, n: int, seed: int, rig: Any = None) -> list:
+    """``n`` fixed conditions drawn from ``preset`` (each from ``default_rng([seed, i])``);
+    ``rig`` (a rig file, mapping or RigParams) gives the operating point of the ``"rig"``
+    preset."""
     from pneugym.envs.conditions import resolve
+    from pneugym.rigfile import as_rig
 
-    space = resolve(preset)
+    space = resolve(preset, rig=as_rig(rig))
     return [space.sample(np.random.default_rng([seed, i])) for i in range(n)]
 
 

@@ -198,23 +198,43 @@ PRESETS: dict[str, ConditionSpace] = {
 }
 
 
+#: The preset of a rig's own operating point (its supply and load), no disturbance.
+RIG_PRESET = "rig"
+
+
+def operating_point(rig: RigParams | None = None) -> ConditionSpace:
+    """The space that always draws ``rig``'s own supply and load (default: the thesis rig at
+    2.5 bar and 10 kg, the same conditions as ``"thesis-2.5bar"``)."""
+    rig = rig or RigParams()
+    return ConditionSpace(supply_pressure_gauge_pa=rig.supply_pressure_gauge_pa,
+                          load_mass_kg=rig.load_mass_kg)
+
+
+#: Every preset name :func:`resolve` takes.
+PRESET_NAMES = sorted([*PRESETS, RIG_PRESET])
+
+
 def resolve(preset: str | ConditionSpace | Conditions | None,
-            overrides: Mapping[str, Any] | None = None) -> ConditionSpace:
+            overrides: Mapping[str, Any] | None = None,
+            rig: RigParams | None = None) -> ConditionSpace:
     """A :class:`ConditionSpace` from a preset name, a space or fixed conditions, with field
-    overrides (numbers or ranges)."""
-    if preset is None:
-        space = PRESETS["thesis-2.5bar"]
+    overrides (numbers or ranges). ``None`` or ``"rig"``: the operating point of ``rig``
+    (:func:`operating_point`; for the thesis rig the same as ``"thesis-2.5bar"``)."""
+    if preset is None or preset == RIG_PRESET:
+        space = operating_point(rig)
     elif isinstance(preset, ConditionSpace):
         space = preset
     elif isinstance(preset, Conditions):
         space = fixed(preset)
     elif isinstance(preset, str):
         if preset not in PRESETS:
-            raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+            raise ValueError(f"unknown preset {preset!r}{did_you_mean(preset, PRESET_NAMES)}; "
+                             f"choose one of {PRESET_NAMES}")
         space = PRESETS[preset]
     else:
         raise ValueError(f"preset must be a name, a ConditionSpace or Conditions; got {preset!r}")
     return space.with_(**dict(overrides)) if overrides else space
 
 
-__all__ = ["Conditions", "ConditionSpace", "PRESETS", "resolve", "fixed", "as_conditions"]
+__all__ = ["Conditions", "ConditionSpace", "PRESETS", "PRESET_NAMES", "RIG_PRESET", "resolve",
+           "operating_point", "fixed", "as_conditions"]

@@ -211,11 +211,11 @@ class _CutOffCore:
             check_flag(name, val)
         if reward_mode not in ("dense", "sparse"):
             raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
-        self.space: ConditionSpace = resolve(preset, conditions)
-        if rig is not None and not isinstance(rig, RigParams):
-            raise ValueError(f"rig = {rig!r} is invalid: must be a RigParams (from a dict: "
-                             f"RigParams.from_dict(d))")
-        base = rig or RigParams()
+        from ..rigfile import as_rig
+
+        base = as_rig(rig, "rig")
+        self.config["rig"] = None if rig is None else base  # a file is read once
+        self.space: ConditionSpace = resolve(preset, conditions, base)
         if sensor_lag_s:
             base = base.with_(effects={"sensor_lag_s": float(sensor_lag_s)})
         self.rig = base
@@ -360,7 +360,7 @@ class _CutOffCore:
         }
 
 
-_DEFAULTS = dict(preset="thesis-2.5bar", conditions=None, rig=None, control_period_s=0.005,
+_DEFAULTS = dict(preset=None, conditions=None, rig=None, control_period_s=0.005,
                  time_limit_s=4.0, decision_window_s=0.02, reversible=False, history=1,
                  observe_params=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
                  reward_mode="dense")
@@ -370,9 +370,11 @@ class CutOffEnv(_CutOffCore, gym.Env):
     """One cut-off episode per reset (see the module docstring for the task).
 
     Parameters (all keyword): ``preset`` (``"thesis-1.5bar"``, ``"thesis-2.5bar"``,
-    ``"randomized"``, a :class:`ConditionSpace` or fixed :class:`Conditions`); ``conditions``
-    (overrides of the space's fields, numbers or ``(low, high)``); ``rig`` (base
-    :class:`RigParams`, default the thesis rig); ``control_period_s`` (5 ms); ``time_limit_s``
+    ``"randomized"``, ``"rig"``, a :class:`ConditionSpace` or fixed :class:`Conditions`; default
+    ``"rig"``: the rig's own supply and load, for the thesis rig 2.5 bar and 10 kg);
+    ``conditions`` (overrides of the space's fields, numbers or ``(low, high)``); ``rig`` (the
+    rig: a :class:`RigParams`, a dict of its fields or of a measured run's ``rig`` section, or the
+    path of a rig file, :meth:`RigParams.load`; default the thesis rig); ``control_period_s`` (5 ms); ``time_limit_s``
     (4 s); ``decision_window_s`` after arrival (20 ms); ``reversible``; ``history`` (samples per
     observation); ``observe_params``; ``sensor_lag_s`` (transducer lag); the objective weights
     ``w_time`` (0.3), ``w_stall`` (2), ``w_stick`` (0.5); ``reward_mode`` (``"dense"``/``"sparse"``);
