@@ -106,13 +106,31 @@ class GasLawPolicy(Policy):
         if np.any(~np.isfinite(self._k_val if self._k_bar is not None else self.k)) or \
                 np.any((self._k_val if self._k_bar is not None else self.k) < 0):
             raise ValueError(f"k = {k!r} must be finite and >= 0")
-        c = self.rig.cylinder
-        self._area = c.piston_area_m2
-        self._v0 = c.dead_volume_m3 + self.rig.effects.dead_volume_m3
-        self._stroke = c.stroke_m
-        self._pa = self.rig.gas.ambient_pressure_pa
-        p_st = self.rig.friction.static_n / self._area
-        self._p_st = p_st if pressure == "gauge" else p_st + self._pa
+        self._geometry([self.rig])
+
+    def _geometry(self, rigs: Sequence[RigParams]) -> None:
+        """The rule's rig values (bore, dead volume, stroke, breakaway friction): one rig for
+        every row, or one per row."""
+        def col(f):
+            v = np.array([f(r) for r in rigs], dtype=float)
+            return float(v[0]) if v.size == 1 else v
+
+        self._area = col(lambda r: r.cylinder.piston_area_m2)
+        self._v0 = col(lambda r: r.cylinder.dead_volume_m3 + r.effects.dead_volume_m3)
+        self._stroke = col(lambda r: r.cylinder.stroke_m)
+        self._pa = col(lambda r: r.gas.ambient_pressure_pa)
+        p_st = col(lambda r: r.friction.static_n) / self._area
+        self._p_st = p_st if self.pressure == "gauge" else p_st + self._pa
+
+    def begin_episodes(self, conditions: Sequence[Any]) -> None:
+        """Episodes on rigs of their own (``rig_changes``, e.g. the transfer suite): the rule
+        takes each one's values, as its rig file would state them."""
+        if any(getattr(c, "rig_changes", ()) for c in conditions):
+            from pneugym.envs.family import apply_changes
+
+            self._geometry([apply_changes(self.rig, c.rig_changes) for c in conditions])
+        else:
+            self._geometry([self.rig])
 
     @classmethod
     def for_env(cls, env, **kwargs: Any) -> "GasLawPolicy":
@@ -135,6 +153,48 @@ class GasLawPolicy(Policy):
             ratio = self._stroke / np.maximum(x, 1e-6)
         k = self.k_for(self.read(obs, "supply_setpoint"))
         return (p > k * self._p_st * ratio ** self.n).astype(np.int64)
+
+
+class GasLawPerRigPolicy(GasLawPolicy):
+    """The Gas-Law rule with K calibrated for each episode's rig (:func:`calibrate` on that rig at
+    its load, per supply pressure, cached per rig): what an engineer gets by re-tuning K on their
+    own rig, the fair baseline of the transfer suite. On a single rig it is :func:`calibrate` run
+    once for the environment's rig."""
+
+    name = "gaslaw-rig"
+    SUPPLIES_BAR = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)  # as the shipped table (held beyond)
+
+    def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
+                 rig: RigParams | None = None, seed: int = 0, **kwargs: Any):
+        super().__init__(layout, k=1.0, rig=rig, **kwargs)
+        self.env_config = {k: v for k, v in dict(env_config or {}).items()
+                           if k not in ("preset", "conditions", "render_mode", "rig")}
+        self.seed = seed
+        self._tables: dict[tuple, dict[float, float]] = {}
+
+    @classmethod
+    def for_env(cls, env, **kwargs: Any) -> "GasLawPerRigPolicy":
+        u = env.unwrapped
+        return cls(u.observation_layout(), env_config=u.config, **{"rig": u.rig, **kwargs})
+
+    def table(self, changes: tuple = ()) -> dict[float, float]:
+        """``{supply_bar_gauge: K}`` calibrated on the rig with ``changes`` (cached)."""
+        if changes not in self._tables:
+            from pneugym.envs.family import apply_changes
+
+            rig = apply_changes(self.rig, changes)
+            res = calibrate(self.SUPPLIES_BAR, env_config={**self.env_config, "rig": rig},
+                            seed=self.seed, progress=False)
+            self._tables[changes] = {r["supply_bar_gauge"]: r["k"] for r in res["table"]}
+        return self._tables[changes]
+
+    def begin_episodes(self, conditions: Sequence[Any]) -> None:
+        super().begin_episodes(conditions)
+        ks = []
+        for c in conditions:
+            t = self.table(getattr(c, "rig_changes", ()))
+            ks.append(np.interp(c.supply_bar_gauge, list(t), list(t.values())))
+        self._k_bar, self.k = None, np.array(ks)
 
 
 def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] | None = None,

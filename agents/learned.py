@@ -107,16 +107,20 @@ def check_layout_record(layout: Any, where: str) -> dict[str, Any]:
     if params is None:
         params = []
     _check_features(params, "param_features", where, allow_empty=True)
+    rig = layout.get("rig_features") or []
+    _check_features(rig, "rig_features", where, allow_empty=True)
     h = layout["history"]
     if not _count(h) or not 1 <= h <= MAX_HISTORY:
         raise LayoutMismatchError(f"{where}: history is {_short(h)}; expected an integer from 1 "
                                   f"to {MAX_HISTORY} (sensor samples per observation)")
     size = layout["size"]
-    want = h * len(names) + len(params)
+    want = h * len(names) + len(rig) + len(params)
     if not _count(size) or size != want:
+        rig_part = f" + {len(rig)} rig features" if rig else ""
         raise LayoutMismatchError(f"{where}: size is {_short(size)}; expected {want} (history "
-                                  f"{h} x {len(names)} features + {len(params)} privileged "
-                                  f"features): the layout is inconsistent (altered or damaged)")
+                                  f"{h} x {len(names)} features{rig_part} + {len(params)} "
+                                  f"privileged features): the layout is inconsistent (altered "
+                                  f"or damaged)")
     cp = layout["control_period_s"]
     if not is_finite_number(cp) or not float(cp) > 0:
         raise LayoutMismatchError(f"{where}: control_period_s is {_short(cp)}; expected a "
@@ -142,6 +146,11 @@ def layout_differences(model: Mapping[str, Any], env: Mapping[str, Any]) -> list
                 diffs.append(f"feature {a[0]!r}: unit/scale/offset {a[1:]} (model) vs {b[1:]} "
                              f"(env)" + ("; the time scale is time_limit_s" if a[0] == "time"
                                          else ""))
+    mr = [_feature_key(f) for f in model.get("rig_features") or []]
+    er = [_feature_key(f) for f in env.get("rig_features") or []]
+    if mr != er:
+        diffs.append(f"rig features {[k[0] for k in mr]} (model) vs {[k[0] for k in er]} (env): "
+                     f"observe_rig differs")
     mp = [_feature_key(f) for f in model.get("param_features", [])]
     ep = [_feature_key(f) for f in env.get("param_features", [])]
     if mp != ep:
@@ -215,10 +224,20 @@ class LearnedPolicy(Policy):
         super().__init__(env_layout)
         self.source = source
         self.model_layout = dict(model_layout)
-        stack = check_layout(model_layout, env_layout, source)
         nf = len(env_layout["features"])
-        self._stack = (HistoryStack(stack, nf, len(env_layout.get("param_features", [])))
-                       if stack else None)
+        n_rig = len(env_layout.get("rig_features") or [])
+        self._rig_cols: np.ndarray | None = None
+        if n_rig and not model_layout.get("rig_features"):
+            # the environment observes the rig's datasheet values, the model never learned to:
+            # their columns are dropped before the model sees the observation
+            start = int(env_layout["history"]) * nf
+            self._rig_cols = np.arange(start, start + n_rig)
+            env_layout = {**env_layout, "rig_features": [],
+                          "size": int(env_layout["size"]) - n_rig}
+        stack = check_layout(model_layout, env_layout, source)
+        extra = len(env_layout.get("param_features", [])) + len(env_layout.get("rig_features")
+                                                                   or [])
+        self._stack = HistoryStack(stack, nf, extra) if stack else None
         self._time_index = [f["name"] for f in env_layout["features"]].index("time")
 
     def begin_episodes(self, conditions) -> None:
@@ -233,6 +252,8 @@ class LearnedPolicy(Policy):
 
     def model_obs(self, obs: np.ndarray) -> np.ndarray:
         """``obs`` (B, env size) in the model's layout (stacked when needed)."""
+        if self._rig_cols is not None:
+            obs = np.delete(obs, self._rig_cols, axis=1)
         if self._stack is None:
             return obs
         return self._stack(obs, self._time_index)

@@ -6,13 +6,13 @@ from typing import Any
 
 from .base import Policy
 from .baselines import ConventionalPolicy, EndStrokePolicy
-from .gaslaw import GasLawPolicy
+from .gaslaw import GasLawPerRigPolicy, GasLawPolicy
 from .learned import LayoutMismatchError, SB3Policy, read_run, run_member
 from .oracle import OraclePolicy
 
 BASELINES: dict[str, type[Policy]] = {
     "conventional": ConventionalPolicy, "endstroke": EndStrokePolicy, "gaslaw": GasLawPolicy,
-    "oracle": OraclePolicy,
+    "gaslaw-rig": GasLawPerRigPolicy, "oracle": OraclePolicy,
 }
 
 

@@ -104,8 +104,9 @@ def generate_rollouts(n: int, seed: int, history: int = 8, preset: Any = "random
             "stick_slip_events": np.array(final["stick_slip_events"], dtype=np.int64),
             "objective": np.array(final["objective"], dtype=float),
         }
-        for key in conds[0].to_dict():
-            rows[key] = np.array([getattr(c, key) for c in conds], dtype=float)
+        for key in conds[0].__dataclass_fields__:
+            if key != "rig_changes":  # the rig itself is not a number (family presets)
+                rows[key] = np.array([getattr(c, key) for c in conds], dtype=float)
         for key, val in rows.items():
             cols.setdefault(key, []).append(val[keep])
         bar.update(b)

@@ -12,7 +12,11 @@ Suites (sensor noise 0.03 mm / 400 Pa in every episode):
 - ``nominal``: the thesis conditions, 1.5 and 2.5 bar gauge with 10 kg;
 - ``robustness``: load {5, 10, 15, 20, 30} kg x supply {1.5, 2, 2.5, 3, 4, 5} bar, plus
   disturbance sets at 1.5 and 2.5 bar with 10 kg: random supply dips (10-30 %, 50-300 ms),
-  friction -30 % / +30 %, valve delay -20 % / +20 %.
+  friction -30 % / +30 %, valve delay -20 % / +20 %;
+- ``transfer``: rigs no policy was trained on: the thesis rig, 6 held-out draws of the rig family
+  (preset ``family``), 5 rigs beyond its edges and 3 model forms it does not draw, each at 1.5 bar
+  5 kg, 2.5 bar 10 kg, 4 bar 20 kg and 5.5 bar 35 kg; each episode has its own oracle, and the
+  figures come per rig too.
 
 Every policy meets the same episodes (conditions and sensor noise from ``--seed``; keep evaluation
 seeds >= 1,000,000, the range this project never uses for training or calibration). Every saved
@@ -33,7 +37,7 @@ from pneugym.rigfile import as_rig
 from .outputs import print_table, write_outputs
 from .run import evaluate
 from .specs import DEFAULT_POLICIES, check_policy_specs, load_models, resolve_learned
-from .suites import EVAL_SEED
+from .suites import EVAL_SEED, SUITES
 
 
 def parser() -> argparse.ArgumentParser:
@@ -47,7 +51,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--runs", default="runs", help="where learned policies are (and are trained)")
     ap.add_argument("--budget", default="quick",
                     help="train.py budget for learned policies trained on demand")
-    ap.add_argument("--suite", default="all", choices=["nominal", "robustness", "all"])
+    ap.add_argument("--suite", default="all", choices=[*SUITES, "all"],
+                    help="which suite to run (default all: nominal, robustness and transfer)")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
     ap.add_argument("--seed", type=int, default=EVAL_SEED,
                     help=f"seed of the episodes (default {EVAL_SEED:,}; keep >= {EVAL_SEED:,})")
@@ -83,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     if args.seed < EVAL_SEED:
         print(f"warning: --seed {args.seed} lies in the range used for training and tuning "
               f"(below {EVAL_SEED:,}); figures on it are not held-out results", file=sys.stderr)
-    suites = ["nominal", "robustness"] if args.suite == "all" else [args.suite]
+    suites = list(SUITES) if args.suite == "all" else [args.suite]
     progress = not args.no_progress
     policies = resolve_learned(args.policies, args.runs, args.budget, progress,
                                env_config.get("rig"))

@@ -57,7 +57,9 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     """Run every policy on every suite; returns the results.json structure. ``preloaded``:
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
     ``progress``: a progress bar over the policies of each suite."""
-    env_config = dict(env_config or {})
+    # the rig's datasheet values are observed: models trained on a family of rigs read them, the
+    # others never see them (agents.learned drops their columns)
+    env_config = {"observe_rig": True, **dict(env_config or {})}
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)
@@ -77,7 +79,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
             wall[name] = time.perf_counter() - t0
             records[name] = [
                 {"suite": suite, "policy": name, "condition": label, "episode": i,
-                 **{k: _py(v[i]) for k, v in out.items()}, **c.to_dict()}
+                 **{k: _py(v[i]) for k, v in out.items()}, **_conditions(label, c)}
                 for i, (label, c) in enumerate(eps)]
         conv_ret = _mean([r["objective"] for r in records["conventional"]])
         orc_ret = _mean([r["objective"] for r in records["oracle"]])
@@ -92,9 +94,20 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
                 cr = _mean([r["objective"] for r in records["conventional"] if r["condition"] == lab])
                 orr = _mean([r["objective"] for r in records["oracle"] if r["condition"] == lab])
                 s["per_condition"][lab] = summarize(sub, cr, orr)
+            if any("/" in lab for lab in labels):  # conditions of several rigs: per rig too
+                s["per_rig"] = {}
+                for rig in dict.fromkeys(lab.split("/")[0] for lab in labels):
+                    def of(recs):
+                        return [r for r in recs if r["condition"].split("/")[0] == rig]
+                    s["per_rig"][rig] = summarize(
+                        of(rec), _mean([r["objective"] for r in of(records["conventional"])]),
+                        _mean([r["objective"] for r in of(records["oracle"])]))
             pols[name] = s
         results["suites"][suite] = {"policies": pols, "conditions": labels,
                                     "episodes": [r for rec in records.values() for r in rec]}
+        rigs = {lab.split("/")[0]: dict(c.rig_changes) for lab, c in eps if "/" in lab}
+        if rigs:
+            results["suites"][suite]["rigs"] = rigs
     results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
                          "seed": seed, "env_config": {k: repr(v) if not isinstance(
                              v, (int, float, str, bool, type(None))) else v
@@ -106,6 +119,15 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     results["versions"] = prov.pop("versions")
     results["provenance"] = prov
     return results
+
+
+def _conditions(label: str, c: Conditions) -> dict[str, Any]:
+    """An episode record's conditions: their fields, the rig by name (the suite's ``rigs`` say
+    what it changes) instead of the changes themselves."""
+    d = c.to_dict()
+    if d.pop("rig_changes") or "/" in label:
+        d["rig"] = label.split("/")[0]
+    return d
 
 
 def _py(v: Any) -> Any:

@@ -4,7 +4,10 @@
   operating point too: the supply and load its rig file states);
 - ``robustness``: load {5, 10, 15, 20, 30} kg x supply {1.5, 2, 2.5, 3, 4, 5} bar, plus
   disturbance sets at 1.5 and 2.5 bar with 10 kg: random supply dips (10-30 %, 50-300 ms),
-  friction -30 % / +30 %, valve delay -20 % / +20 %.
+  friction -30 % / +30 %, valve delay -20 % / +20 %;
+- ``transfer``: rigs no policy was trained on (:func:`transfer_rigs`): the thesis rig, held-out
+  draws of the rig family, rigs beyond its edges and model forms it does not draw, each at four
+  operating points (:data:`TRANSFER_POINTS`), each episode with its own oracle.
 
 Each cell's episodes are drawn from their own seeded generator (:func:`suite_episodes`), from
 :data:`EVAL_SEED` up: seeds no training or calibration uses."""
@@ -29,6 +32,76 @@ def _fixed(bar: float, kg: float, **kw: Any) -> ConditionSpace:
     return ConditionSpace(supply_pressure_gauge_pa=bar * 1e5, load_mass_kg=kg, **NOISE, **kw)
 
 
+#: operating points (supply bar gauge, load kg) of every rig of the transfer suite
+TRANSFER_POINTS = ((1.5, 5.0), (2.5, 10.0), (4.0, 20.0), (5.5, 35.0))
+#: held-out draws of the rig family in the transfer suite
+TRANSFER_HELD_OUT = 6
+#: rigs beyond the family's edges (``pneugym.envs.family.RigFamily``): each one quantity out of range
+TRANSFER_EDGES: dict[str, dict[str, float]] = {
+    "edge-dead-volume": {"cylinder.dead_volume_m3": 8e-4},
+    "edge-long-line": {"line.length_m": 6.5},
+    "edge-slow-small-valve": {"valve.delay_s": 0.4, "valve.area_m2": 0.25 * 1.56e-5},
+    "edge-high-friction": {"friction.static_n": 750.0, "friction.coulomb_n": 320.0,
+                           "friction.viscous_n_s_per_m": 4000.0},
+    "edge-soft-cushion": {"cylinder.cushion_length_m": 0.03, "cylinder.cushion_factor_exhaust": 0.5},
+}
+#: the thesis rig under model forms and effects the family does not draw
+TRANSFER_FORMS: dict[str, dict[str, Any]] = {
+    "form-lumped-iso6358": {"line.model": "lumped", "valve.flow_model": "iso6358",
+                            "cylinder.cushion_ramp_m": 0.004},
+    "form-leaks-heat": {"effects.leak_drive_area_m2": 2e-7, "effects.leak_piston_area_m2": 5e-8,
+                        "effects.heat_transfer_time_constant_s": 1.0},
+    "form-stribeck-sensor-lag": {"effects.stribeck_force_n": 50.0, "effects.sensor_lag_s": 0.01},
+}
+SUITES = ("nominal", "robustness", "transfer")
+#: the slowest conventional stroke [s] of an edge or model-form rig (the episodes' limit is 4 s)
+EDGE_MAX_CONVENTIONAL_TIME_S = 3.2
+
+
+def transfer_rigs(base: RigParams | None = None) -> dict[str, tuple]:
+    """The rigs of the transfer suite, by name, as ``rig_changes`` to ``base`` (default the
+    thesis rig): the thesis rig itself, :data:`TRANSFER_HELD_OUT` draws of the ``family`` preset's
+    rig family from :data:`EVAL_SEED` (seeds no training uses; redrawn until every
+    :data:`TRANSFER_POINTS` completes within the family's time bound), the edges
+    (:data:`TRANSFER_EDGES`) and the model forms (:data:`TRANSFER_FORMS`)."""
+    from pneugym.envs.conditions import PRESETS
+    from pneugym.envs.family import check_changes, checked_substep
+
+    base = base or RigParams()
+    family = PRESETS["family"].family
+    rigs: dict[str, tuple] = {"thesis": ()}
+    rng = np.random.default_rng([EVAL_SEED, 12])
+    while len(rigs) <= TRANSFER_HELD_OUT:
+        changes = family.sample(rng, base)
+        dts = []
+        try:
+            for b, m in TRANSFER_POINTS:
+                c = Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m,
+                               rig_changes=changes)
+                dts.append(checked_substep(c.rig(base), c.dip, family.max_conventional_time_s,
+                                           family.max_conventional_sticks))
+        except ValueError:
+            continue
+        if any(dts):
+            changes += (("solver.dt_s", min(d for d in dts if d)),)
+        rigs[f"heldout-{len(rigs)}"] = changes
+    for name, ch in {**TRANSFER_EDGES, **TRANSFER_FORMS}.items():
+        changes = check_changes(ch, name)
+        dts = []
+        for b, m in TRANSFER_POINTS:  # every point must complete in time; a design error else
+            c = Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m, rig_changes=changes)
+            try:
+                dts.append(checked_substep(c.rig(base), c.dip, EDGE_MAX_CONVENTIONAL_TIME_S,
+                                           family.max_conventional_sticks))
+            except ValueError as exc:
+                raise ValueError(f"transfer rig {name!r} at {b:g} bar, {m:g} kg on this base "
+                                 f"rig: {exc}") from None
+        if any(dts):
+            changes = check_changes(changes + (("solver.dt_s", min(d for d in dts if d)),), name)
+        rigs[name] = changes
+    return rigs
+
+
 def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, ConditionSpace]]:
     """The condition cells of a suite: ``(label, space to draw each episode's conditions from)``;
     ``rig``'s own operating point is a cell of the nominal suite when it is none of the thesis's."""
@@ -51,7 +124,10 @@ def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, Con
                 (f"{b:g}bar-valve-delay+20%", _fixed(b, 10.0, valve_delay_scale=1.2)),
             ]
         return cells
-    raise ValueError(f"unknown suite {suite!r}; choose nominal, robustness or all")
+    if suite == "transfer":
+        return [(f"{name}/{b:g}bar-{m:g}kg", _fixed(b, m, rig_changes=changes))
+                for name, changes in transfer_rigs(rig).items() for b, m in TRANSFER_POINTS]
+    raise ValueError(f"unknown suite {suite!r}; choose one of {SUITES} or all")
 
 
 def suite_episodes(suite: str, episodes: int, seed: int, rig: RigParams | None = None

@@ -105,9 +105,10 @@ def config_schema(algo: str) -> Section:
 
         fields = {
             **common,
-            "env": Section({"history": integer(1, MAX_HISTORY)}, "ESAC environment option "
-                           "(ESAC trains on the environment's defaults: only history is "
-                           "configurable)", required=("history",)),
+            "env": Section({"history": integer(1, MAX_HISTORY), "observe_rig": boolean},
+                           "ESAC environment option (ESAC trains on the environment's defaults: "
+                           "only history and observe_rig are configurable)",
+                           required=("history",)),
             "test": Section({"episodes": integer(1, 100_000), "seed": seed_spec},
                             "test entry", required=("episodes", "seed")),
             "fit": Section({"hidden": list_of(integer(1, 4096), 0, 16,

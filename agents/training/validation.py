@@ -23,8 +23,9 @@ def validation_conditions(preset: str, n: int, seed: int, rig: Any = None) -> li
     from pneugym.envs.conditions import resolve
     from pneugym.rigfile import as_rig
 
-    space = resolve(preset, rig=as_rig(rig))
-    return [space.sample(np.random.default_rng([seed, i])) for i in range(n)]
+    rig = as_rig(rig)
+    space = resolve(preset, rig=rig)
+    return [space.sample(np.random.default_rng([seed, i]), rig) for i in range(n)]
 
 
 def validation_references(conds: Sequence[Any], env_config: Mapping[str, Any], seed: int,

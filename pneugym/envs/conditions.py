@@ -17,6 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..params import RigParams, _check, _finite, _nonneg, _positive, did_you_mean
+from .family import RigFamily, apply_changes, check_changes, checked_substep
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,8 @@ class Conditions:
     the rig's switching delay at this supply pressure. The dip lowers the supply by ``dip_depth``
     times its gauge pressure along a raised cosine (``dip_duration_s = 0``: no dip). Sensor noise
     is white and Gaussian, with these standard deviations, on the sampled sensors only.
+    ``rig_changes`` (``(dotted field, value)`` pairs, :mod:`pneugym.envs.family`) change the rig
+    itself for this episode, before the other fields apply.
     """
 
     supply_pressure_gauge_pa: float = 250_000.0
@@ -38,9 +41,12 @@ class Conditions:
     dip_depth: float = 0.0
     position_noise_m: float = 0.0
     pressure_noise_pa: float = 0.0
+    rig_changes: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         _finite(self)
+        object.__setattr__(self, "rig_changes", check_changes(self.rig_changes,
+                                                              "Conditions.rig_changes"))
         _positive(self, "supply_pressure_gauge_pa", "valve_delay_scale")
         _nonneg(self, "load_mass_kg", "friction_scale", "dip_start_s", "dip_duration_s",
                 "position_noise_m", "pressure_noise_pa")
@@ -57,7 +63,7 @@ class Conditions:
 
     def rig(self, base: RigParams | None = None) -> RigParams:
         """``base`` (default: the thesis rig) under these conditions."""
-        base = base or RigParams()
+        base = apply_changes(base or RigParams(), self.rig_changes)
         rig = base.with_(supply_pressure_gauge_pa=float(self.supply_pressure_gauge_pa),
                          load_mass_kg=float(self.load_mass_kg))
         f = rig.friction
@@ -70,10 +76,15 @@ class Conditions:
     def physics_key(self) -> tuple[float, ...]:
         """The fields that change the plant's motion (not the sensor noise)."""
         return (self.supply_pressure_gauge_pa, self.load_mass_kg, self.friction_scale,
-                self.valve_delay_scale, self.dip_start_s, self.dip_duration_s, self.dip_depth)
+                self.valve_delay_scale, self.dip_start_s, self.dip_duration_s, self.dip_depth,
+                self.rig_changes)
 
-    def to_dict(self) -> dict[str, float]:
-        return dataclasses.asdict(self)
+    def to_dict(self) -> dict[str, Any]:
+        """The fields; ``rig_changes`` as a dict (JSON-ready; :func:`as_conditions` takes it
+        back)."""
+        d = dataclasses.asdict(self)
+        d["rig_changes"] = dict(d["rig_changes"])
+        return d
 
 
 Range = tuple[float, float]
@@ -104,7 +115,9 @@ class ConditionSpace:
     """Uniform ranges ``(low, high)`` to draw :class:`Conditions` from (a number = fixed).
 
     A dip happens with probability ``dip_probability``; its depth, duration and start are then
-    drawn from their ranges (the start counted from the extend command).
+    drawn from their ranges (the start counted from the extend command). With a ``family``
+    (:class:`~pneugym.envs.family.RigFamily`) each draw also draws a rig (``rig_changes``), and a
+    draw whose conventional stroke is too slow is redrawn; else ``rig_changes`` are fixed.
     """
 
     supply_pressure_gauge_pa: Range = (250_000.0, 250_000.0)
@@ -117,9 +130,18 @@ class ConditionSpace:
     dip_start_s: Range = (0.0, 0.0)
     position_noise_m: Range = (0.0, 0.0)
     pressure_noise_pa: Range = (0.0, 0.0)
+    family: RigFamily | None = None
+    rig_changes: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
+        if self.family is not None and not isinstance(self.family, RigFamily):
+            raise ValueError(f"ConditionSpace.family = {self.family!r:.80} must be a RigFamily "
+                             f"or None")
+        object.__setattr__(self, "rig_changes", check_changes(self.rig_changes,
+                                                              "ConditionSpace.rig_changes"))
         for f in fields(self):
+            if f.name in ("family", "rig_changes"):
+                continue
             if f.name == "dip_probability":
                 if not (_number(self.dip_probability) and 0.0 <= self.dip_probability <= 1.0):
                     raise ValueError(f"ConditionSpace.dip_probability = {self.dip_probability!r} "
@@ -128,7 +150,8 @@ class ConditionSpace:
             object.__setattr__(self, f.name, _as_range(f.name, getattr(self, f.name)))
         # the extremes must make valid conditions
         for pick in (0, 1):
-            Conditions(**{f.name: getattr(self, f.name)[pick] for f in fields(Conditions)})
+            Conditions(**{f.name: getattr(self, f.name)[pick] for f in fields(Conditions)
+                          if f.name != "rig_changes"})
 
     def with_(self, **changes: Any) -> "ConditionSpace":
         names = {f.name for f in fields(self)}
@@ -138,8 +161,30 @@ class ConditionSpace:
                              f"{did_you_mean(unknown[0], names)}; known: {sorted(names)}")
         return dataclasses.replace(self, **changes)
 
-    def sample(self, rng: np.random.Generator) -> Conditions:
-        """Draw one :class:`Conditions` (a fixed number of draws, so streams stay aligned)."""
+    def sample(self, rng: np.random.Generator, base: RigParams | None = None) -> Conditions:
+        """Draw one :class:`Conditions` (a fixed number of draws, so streams stay aligned); with a
+        ``family``, a rig too, on ``base`` (default the thesis rig), redrawn until the
+        conventional stroke completes within the family's ``max_conventional_time_s``."""
+        if self.family is None:
+            return self._sample(rng, self.rig_changes)
+        base = base or RigParams()
+        for _ in range(100):
+            cond = self._sample(rng, ())
+            changes = self.family.sample(rng, base)
+            cond = dataclasses.replace(cond, rig_changes=changes)
+            try:
+                dt = checked_substep(cond.rig(base), cond.dip, self.family.max_conventional_time_s,
+                                     self.family.max_conventional_sticks)
+            except ValueError:
+                continue
+            if dt is not None:  # the plant needed a smaller substep: every episode takes it
+                cond = dataclasses.replace(cond, rig_changes=changes + (("solver.dt_s", dt),))
+            return cond
+        raise ValueError(f"{self.family} draws no rig whose conventional stroke completes within "
+                         f"{self.family.max_conventional_time_s} s in 100 tries: widen "
+                         f"max_conventional_time_s or narrow the ranges")
+
+    def _sample(self, rng: np.random.Generator, changes: tuple) -> Conditions:
         u = rng.random(10)
 
         def pick(name: str, k: int) -> float:
@@ -157,6 +202,7 @@ class ConditionSpace:
             dip_start_s=pick("dip_start_s", 7) if dip else 0.0,
             position_noise_m=pick("position_noise_m", 8),
             pressure_noise_pa=pick("pressure_noise_pa", 9),
+            rig_changes=changes,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -181,8 +227,9 @@ def as_conditions(c: Any, what: str = "conditions") -> Conditions:
 def fixed(c: Conditions) -> ConditionSpace:
     """The space that always draws ``c``."""
     d = c.to_dict()
+    d.pop("rig_changes", None)
     return ConditionSpace(dip_probability=1.0 if c.dip_duration_s > 0 else 0.0,
-                          **{k: (v, v) for k, v in d.items()})
+                          rig_changes=c.rig_changes, **{k: (v, v) for k, v in d.items()})
 
 
 PRESETS: dict[str, ConditionSpace] = {
@@ -195,6 +242,13 @@ PRESETS: dict[str, ConditionSpace] = {
         friction_scale=(0.7, 1.3), valve_delay_scale=(0.8, 1.2),
         dip_probability=0.5, dip_depth=(0.0, 0.3), dip_duration_s=(0.05, 0.3),
         dip_start_s=(0.0, 1.0), position_noise_m=(0.0, 3e-5), pressure_noise_pa=(0.0, 400.0)),
+    # a family of rigs (pneugym.envs.family): each episode its own rig, load and supply, as well
+    # as the disturbances of "randomized"
+    "family": ConditionSpace(
+        supply_pressure_gauge_pa=(150_000.0, 600_000.0), load_mass_kg=(2.0, 40.0),
+        dip_probability=0.5, dip_depth=(0.0, 0.3), dip_duration_s=(0.05, 0.3),
+        dip_start_s=(0.0, 1.0), position_noise_m=(0.0, 3e-5), pressure_noise_pa=(0.0, 400.0),
+        family=RigFamily()),
 }
 
 

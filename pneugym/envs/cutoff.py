@@ -14,8 +14,9 @@ at ``time_limit_s``.
 (as in the thesis) unless ``reversible=True``, where each action sets the valve command.
 
 **Observation** ``Box(float32)``: ``history`` samples (oldest first) of the seven sensor features
-of :data:`OBSERVATION`, each ``(value - offset) / scale``, then, with ``observe_params=True``, the
-privileged features of :data:`PARAM_OBSERVATION`.
+of :data:`OBSERVATION`, each ``(value - offset) / scale``, then, with ``observe_rig=True``, the
+rig's datasheet values of :data:`RIG_OBSERVATION` (what a user writes in a rig file), then, with
+``observe_params=True``, the privileged features of :data:`PARAM_OBSERVATION`.
 
 **Reward.** The return of an episode equals its objective
 
@@ -82,6 +83,14 @@ OBSERVATION: tuple[Feature, ...] = (
     Feature("supply_setpoint", "Pa", PRESSURE_SCALE_PA, "ambient", "supply set-point, gauge"),
     Feature("time", "s", math.nan, "0", "time since the extend command / time_limit_s"),
     Feature("supply_cut", "-", 1.0, "0", "1 while the supply is cut"),
+)
+#: The rig's datasheet values (``observe_rig=True``): what its rig file states, fixed for an
+#: episode; a policy trained on a family of rigs learns from them which rig it is on.
+RIG_OBSERVATION: tuple[Feature, ...] = (
+    Feature("line_length", "m", 5.0, "0", "supply line length"),
+    Feature("line_diameter", "m", 0.008, "0", "supply line inner diameter"),
+    Feature("dead_volume", "m3", 5e-4, "0", "stated dead volume of the driving chamber"),
+    Feature("payload", "kg", 40.0, "0", "the load the cylinder moves"),
 )
 #: Privileged features (``observe_params=True``): the true conditions of the episode.
 PARAM_OBSERVATION: tuple[Feature, ...] = (
@@ -190,7 +199,8 @@ class _CutOffCore:
     :class:`CutOffVectorEnv` (a batch): packed plants ``Y, P, D``, episode arrays ``E``."""
 
     def _configure(self, n: int, preset, conditions, rig, control_period_s, time_limit_s,
-                   decision_window_s, reversible, history, observe_params, sensor_lag_s,
+                   decision_window_s, reversible, history, observe_params, observe_rig,
+                   sensor_lag_s,
                    w_time, w_stall, w_stick, reward_mode) -> None:
         values = {"control_period_s": control_period_s, "time_limit_s": time_limit_s,
                   "decision_window_s": decision_window_s, "w_time": w_time, "w_stall": w_stall,
@@ -207,7 +217,8 @@ class _CutOffCore:
         if not (isinstance(history, (int, np.integer)) and not isinstance(history, bool)
                 and 1 <= history <= MAX_HISTORY):
             raise ValueError(f"history = {history!r} must be an integer in [1, {MAX_HISTORY}]")
-        for name, val in (("reversible", reversible), ("observe_params", observe_params)):
+        for name, val in (("reversible", reversible), ("observe_params", observe_params),
+                          ("observe_rig", observe_rig)):
             check_flag(name, val)
         if reward_mode not in ("dense", "sparse"):
             raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
@@ -225,11 +236,13 @@ class _CutOffCore:
         self.reversible = bool(reversible)
         self.history = int(history)
         self.observe_params = bool(observe_params)
+        self.observe_rig = bool(observe_rig)
         self.weights = {"w_time": float(w_time), "w_stall": float(w_stall),
                         "w_stick": float(w_stick)}
         self.reward_mode = reward_mode
         self.conditions: list[Conditions | None] = [None] * n
-        self._cond_arrays = {k: np.zeros(n) for k in Conditions.__dataclass_fields__}
+        self._cond_arrays = {k: np.zeros(n) for k in Conditions.__dataclass_fields__
+                             if k != "rig_changes"}
 
         P, y0, d0 = _template(self.rig)
         self.Y = np.zeros((n, y0.size))
@@ -244,8 +257,10 @@ class _CutOffCore:
         self._x_prev = np.zeros(n)
         self._scales = np.array([self.rig.cylinder.stroke_m, VELOCITY_SCALE_M_S,
                                  PRESSURE_SCALE_PA, self.time_limit_s])
-        self._extra = np.zeros((n, len(PARAM_OBSERVATION) if observe_params else 0))
-        nobs = self.history * EP.NF + (len(PARAM_OBSERVATION) if self.observe_params else 0)
+        n_extra = (len(RIG_OBSERVATION) if observe_rig else 0) + (
+            len(PARAM_OBSERVATION) if observe_params else 0)
+        self._extra = np.zeros((n, n_extra))
+        nobs = self.history * EP.NF + n_extra
         self._obs = np.zeros((n, nobs), dtype=np.float32)
         self._hist = np.zeros((n, self.history, EP.NF))
         self._single_obs_space = spaces.Box(-OBS_BOUND, OBS_BOUND, shape=(nobs,),
@@ -259,6 +274,8 @@ class _CutOffCore:
         """Name of every observation element (``name[-k]`` = k samples ago)."""
         names = [f"{f.name}[{k - self.history + 1}]" if self.history > 1 else f.name
                  for k in range(self.history) for f in OBSERVATION]
+        if self.observe_rig:
+            names += [f.name for f in RIG_OBSERVATION]
         if self.observe_params:
             names += [f.name for f in PARAM_OBSERVATION]
         return names
@@ -271,7 +288,10 @@ class _CutOffCore:
                   "offset": f.offset, "description": f.description} for f in OBSERVATION]
         params = [{"name": f.name, "unit": f.unit, "scale": f.scale, "description": f.description}
                   for f in PARAM_OBSERVATION] if self.observe_params else []
-        return {"history": self.history, "features": feats, "param_features": params,
+        rig = [{"name": f.name, "unit": f.unit, "scale": f.scale, "description": f.description}
+               for f in RIG_OBSERVATION] if self.observe_rig else []
+        return {"history": self.history, "features": feats, "rig_features": rig,
+                "param_features": params,
                 "size": int(self._obs.shape[1]), "control_period_s": self.control_period_s}
 
     # -- episodes --------------------------------------------------------------------------
@@ -307,8 +327,16 @@ class _CutOffCore:
             arr[i] = getattr(cond, k)
         self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
                               cond.pressure_noise_pa)
+        k = 0
+        if self.observe_rig:
+            r = cond.rig(self.rig)
+            self._extra[i, :len(RIG_OBSERVATION)] = (
+                r.line.length_m / 5.0, r.line.diameter_m / 0.008,
+                (r.cylinder.dead_volume_m3 + r.effects.dead_volume_m3) / 5e-4,
+                r.load_mass_kg / 40.0)
+            k = len(RIG_OBSERVATION)
         if self.observe_params:
-            self._extra[i] = (cond.load_mass_kg / 30.0, cond.friction_scale,
+            self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
                               float(self.P[i, L.P_DELAY]) / 0.4)
         self._status[i] = 0
 
@@ -318,6 +346,30 @@ class _CutOffCore:
             self._noise[rows] = rng.standard_normal((rows.size, 3)) * self._noise_std[rows]
         EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
                    fresh, self._hist, self._extra, OBS_BOUND, self._obs)
+
+    def _retry(self, i: int, action: int, y0: np.ndarray, d0: np.ndarray, e0: np.ndarray
+               ) -> float:
+        """Episode ``i``'s step went non-physical: step it again from its state before the step
+        with half the substep (kept for the rest of the episode), at most ``MAX_STEP_RETRIES``
+        times, as :class:`~pneugym.plant.Plant` does; returns the step's reward. Still failing,
+        ``self._status[i]`` stays set (:meth:`_check_status` raises)."""
+        import warnings
+
+        from ..plant import MAX_STEP_RETRIES, RigWarning
+
+        r = 0.0
+        for _ in range(MAX_STEP_RETRIES):
+            self.Y[i], self.D[i], self.E[i] = y0, d0, e0
+            self.P[i, L.P_DT] *= 0.5
+            r, st = EP.step_one(self.Y[i], self.P[i], self.D[i], self.E[i], action, self._W[i])
+            self._status[i] = st
+            if not st:
+                warnings.warn(f"episode {i} under {self.conditions[i]}: a step went "
+                              f"non-physical; retried with half the substep, "
+                              f"{self.P[i, L.P_DT]:.3g} s, for the rest of the episode",
+                              RigWarning, stacklevel=3)
+                break
+        return float(r)
 
     def _check_status(self) -> None:
         bad = np.flatnonzero(self._status)
@@ -362,7 +414,7 @@ class _CutOffCore:
 
 _DEFAULTS = dict(preset=None, conditions=None, rig=None, control_period_s=0.005,
                  time_limit_s=4.0, decision_window_s=0.02, reversible=False, history=1,
-                 observe_params=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
+                 observe_params=False, observe_rig=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
                  reward_mode="dense")
 
 
@@ -376,7 +428,8 @@ class CutOffEnv(_CutOffCore, gym.Env):
     rig: a :class:`RigParams`, a dict of its fields or of a measured run's ``rig`` section, or the
     path of a rig file, :meth:`RigParams.load`; default the thesis rig); ``control_period_s`` (5 ms); ``time_limit_s``
     (4 s); ``decision_window_s`` after arrival (20 ms); ``reversible``; ``history`` (samples per
-    observation); ``observe_params``; ``sensor_lag_s`` (transducer lag); the objective weights
+    observation); ``observe_params``; ``observe_rig`` (the rig file's datasheet values,
+    :data:`RIG_OBSERVATION`); ``sensor_lag_s`` (transducer lag); the objective weights
     ``w_time`` (0.3), ``w_stall`` (2), ``w_stick`` (0.5); ``reward_mode`` (``"dense"``/``"sparse"``);
     ``render_mode`` (``"rgb_array"``).
     """
@@ -409,7 +462,7 @@ class CutOffEnv(_CutOffCore, gym.Env):
         super().reset(seed=seed)
         cond = check_options(options).get("conditions")
         if cond is None:
-            cond = self.space.sample(self.np_random)
+            cond = self.space.sample(self.np_random, self.rig)
         else:
             cond = as_conditions(cond, "options['conditions']")
         self._start(0, cond)
@@ -425,9 +478,12 @@ class CutOffEnv(_CutOffCore, gym.Env):
             raise RuntimeError("call reset() before step()")
         if self._e[EP.E_DONE] != 0.0:
             raise RuntimeError("the episode has ended: call reset()")
-        r, st = EP.step_one(self._y, self._p, self._d, self._e, check_action(action), self._W[0])
+        act = check_action(action)
+        before = (self._y.copy(), self._d.copy(), self._e.copy())
+        r, st = EP.step_one(self._y, self._p, self._d, self._e, act, self._W[0])
         if st:
             self._status[0] = st
+            r = self._retry(0, act, *before)
             self._check_status()
         self._observe(self._all, self.np_random, fresh=False)
         self._record()
@@ -512,7 +568,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
         for i in range(n):
             c = conds[i] if conds is not None else None
-            self._start(i, c if c is not None else self.space.sample(self._rngs[i]))
+            self._start(i, c if c is not None else self.space.sample(self._rngs[i], self.rig))
         self._steps[:] = 0
         self._idle = np.zeros(n, dtype=bool)
         self._observe(self._all, self.np_random, fresh=True)
@@ -525,7 +581,11 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         if not self._rngs:
             raise RuntimeError("call reset() before step()")
         acts = check_actions(actions, self.num_envs)
+        before = (self.Y.copy(), self.D.copy(), self.E.copy())
         EP.step_batch(self.Y, self.P, self.D, self.E, acts, self._rewards, self._status, self._W)
+        for i in np.flatnonzero(self._status):
+            self._rewards[i] = self._retry(i, int(acts[i]), before[0][i], before[1][i],
+                                           before[2][i])
         self._check_status()
         self._steps += 1
         self._observe(self._all, self.np_random, fresh=False)
@@ -546,7 +606,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
                 final_obs[i] = self._obs[i].copy()
                 finals[int(i)] = {**self._step_info(i), **self._final_info(i)}
                 if self.autoreset:
-                    self._start(int(i), self.space.sample(self._rngs[i]))
+                    self._start(int(i), self.space.sample(self._rngs[i], self.rig))
                     self._steps[i] = 0
                 else:
                     self._idle[i] = True
@@ -586,7 +646,12 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         return out
 
     def _conditions_info(self) -> dict[str, np.ndarray]:
-        return {k: arr.copy() for k, arr in self._cond_arrays.items()}
+        out = {k: arr.copy() for k, arr in self._cond_arrays.items()}
+        changes = np.empty(self.num_envs, dtype=object)  # the rig of each episode (family)
+        for i, c in enumerate(self.conditions):
+            changes[i] = dict(c.rig_changes) if c is not None else {}
+        out["rig_changes"] = changes
+        return out
 
     def _batch_info(self) -> dict[str, Any]:
         EP.state_info(self.Y, self.P, self.D, self._info)

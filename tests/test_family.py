@@ -1,0 +1,163 @@
+"""The rig family (pneugym.envs.family): draws inside the stated ranges, reproducible, each rig
+in the episode's conditions (and so in every cache key); the transfer suite built on it; the
+Gas-Law rule per rig; the environment's retry of a step that went non-physical."""
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from agents import BASELINES, make_policy
+from agents.base import run_first_episodes
+from agents.evaluation.suites import (TRANSFER_EDGES, TRANSFER_FORMS, TRANSFER_HELD_OUT,
+                                      TRANSFER_POINTS, suite_cells, suite_episodes, transfer_rigs)
+from agents.gaslaw import GasLawPerRigPolicy, GasLawPolicy
+from pneugym.envs import Conditions
+from pneugym.envs.conditions import PRESETS, as_conditions
+from pneugym.envs.cutoff import CutOffVectorEnv, conventional_figures
+from pneugym.envs.family import CHANGEABLE, RigFamily, apply_changes, check_changes
+from pneugym.params import RigParams
+from pneugym.physics import layout as L
+from pneugym.plant import RigWarning
+
+FAMILY = PRESETS["family"]
+
+
+@pytest.fixture(scope="module")
+def draws():
+    return [FAMILY.sample(np.random.default_rng([3, i])) for i in range(40)]
+
+
+def test_draws_stay_in_the_family_ranges(draws):
+    fam, base = FAMILY.family, RigParams()
+    forms = set()
+    for c in draws:
+        rig = c.rig()
+        assert fam.dead_volume_m3[0] <= rig.cylinder.dead_volume_m3 <= fam.dead_volume_m3[1]
+        assert fam.line_length_m[0] <= rig.line.length_m <= fam.line_length_m[1]
+        assert fam.line_diameter_m[0] <= rig.line.diameter_m <= fam.line_diameter_m[1]
+        for got, ref, name in ((rig.valve.area_m2, base.valve.area_m2, "valve_area_scale"),
+                               (rig.cylinder.port_area_m2, base.cylinder.port_area_m2,
+                                "port_area_scale")):
+            lo, hi = getattr(fam, name)
+            assert lo * ref * (1 - 1e-12) <= got <= hi * ref * (1 + 1e-12)
+        assert 0.02 <= rig.valve.delay_s <= 0.3
+        assert 150.0 <= rig.friction.static_n <= 600.0
+        assert rig.friction.coulomb_n <= 0.9 * rig.friction.static_n
+        assert 1.5e5 <= c.supply_pressure_gauge_pa <= 6e5 and 2.0 <= c.load_mass_kg <= 40.0
+        assert rig.cylinder.bore_m == base.cylinder.bore_m  # the datasheet geometry stays
+        forms.add((rig.line.model, rig.valve.flow_model))
+        # every draw can complete: its conventional stroke within the family's bound
+        t, _ = conventional_figures(rig, c.dip)
+        assert t <= fam.max_conventional_time_s
+    assert len(forms) == 4  # both line models and both orifice laws occur
+
+
+def test_draws_are_reproducible_and_differ(draws):
+    again = FAMILY.sample(np.random.default_rng([3, 0]))
+    assert again == draws[0] and again.physics_key() == draws[0].physics_key()
+    assert len({c.rig_changes for c in draws}) == len(draws)
+
+
+def test_rig_changes_round_trip_and_are_checked():
+    c = Conditions(rig_changes={"line.length_m": 2.0, "valve.flow_model": "iso6358"})
+    assert c.rig_changes == (("line.length_m", 2.0), ("valve.flow_model", "iso6358"))
+    assert as_conditions(c.to_dict()) == c  # JSON-ready and back
+    assert c.rig().line.length_m == 2.0 and c.rig().valve.flow_model == "iso6358"
+    assert c.physics_key() != Conditions().physics_key()
+    with pytest.raises(ValueError, match="did you mean 'line.length_m'"):
+        Conditions(rig_changes={"line.lenght_m": 2.0})
+    with pytest.raises(ValueError, match="cylinder.bore_m"):
+        check_changes({"cylinder.bore_m": 0.1})  # not something a family changes
+    with pytest.raises(ValueError, match="number or"):
+        check_changes({"line.length_m": True})
+    with pytest.raises(ValueError, match="mm given as m"):
+        apply_changes(RigParams(), check_changes({"line.diameter_m": 5.0}))
+    assert set(CHANGEABLE) >= {k for rig in TRANSFER_EDGES.values() for k in rig}
+
+
+def test_bad_families_are_refused():
+    with pytest.raises(ValueError, match="probability"):
+        RigFamily(p_leak=1.5)
+    with pytest.raises(ValueError, match="low <= high"):
+        RigFamily(line_length_m=(5.0, 0.3))
+    with pytest.raises(ValueError, match="did you mean 'line_length_m'"):
+        RigFamily().with_(line_lenght_m=(1.0, 2.0))
+    with pytest.raises(ValueError, match="mm given as m"):  # extremes must make valid rigs
+        RigFamily(line_diameter_m=(0.004, 8.0))
+    impossible = FAMILY.with_(family=RigFamily(max_conventional_time_s=0.05))
+    with pytest.raises(ValueError, match="no rig whose conventional stroke completes"):
+        impossible.sample(np.random.default_rng(0))
+
+
+def test_the_environment_draws_a_rig_per_episode():
+    env = CutOffVectorEnv(num_envs=3, preset="family")
+    _, info = env.reset(seed=4)
+    rigs = [c.rig(env.rig) for c in env.conditions]
+    assert len({r.line.length_m for r in rigs}) == 3
+    assert [dict(c.rig_changes) for c in env.conditions] == list(info["conditions"]["rig_changes"])
+    for i, r in enumerate(rigs):  # each row's plant is its own rig
+        assert env.P[i, L.P_V0D] == pytest.approx(r.cylinder.dead_volume_m3)
+        assert env.P[i, L.P_LINE_MODEL] == (r.line.model == "lumped")
+
+
+def test_transfer_suite_rigs_and_cells():
+    rigs = transfer_rigs()
+    assert list(rigs)[0] == "thesis" and rigs["thesis"] == ()
+    held = [k for k in rigs if k.startswith("heldout-")]
+    assert len(held) == TRANSFER_HELD_OUT and set(TRANSFER_EDGES) | set(TRANSFER_FORMS) < set(rigs)
+    assert transfer_rigs() == rigs  # fixed: the same rigs every time
+    # held-out draws: from evaluation seeds, none of them a training draw's rig
+    train = {FAMILY.sample(np.random.default_rng(s)).rig_changes for s in range(200)}
+    assert not train & {rigs[k] for k in held}
+    cells = suite_cells("transfer")
+    assert len(cells) == len(rigs) * len(TRANSFER_POINTS)
+    eps = suite_episodes("transfer", 1, 1_000_000)
+    assert {lab.split("/")[0] for lab, _ in eps} == set(rigs)
+    assert all(c.rig_changes == rigs[lab.split("/")[0]] for lab, c in eps)
+    edge = dict(rigs["edge-dead-volume"])
+    assert edge["cylinder.dead_volume_m3"] > FAMILY.family.dead_volume_m3[1]
+
+
+def test_gaslaw_takes_each_episodes_rig_and_the_per_rig_k():
+    rigs = transfer_rigs()
+    conds = [Conditions(supply_pressure_gauge_pa=2.5e5, rig_changes=rigs[k])
+             for k in ("thesis", "edge-dead-volume")]
+    env = CutOffVectorEnv(num_envs=2, autoreset=False)
+    pol = GasLawPolicy.for_env(env)
+    pol.begin_episodes(conds)
+    assert list(pol._v0) == [RigParams().cylinder.dead_volume_m3, 8e-4]
+    pol.begin_episodes([Conditions()] * 2)  # back to one rig
+    assert pol._v0 == RigParams().cylinder.dead_volume_m3
+    assert "gaslaw-rig" in BASELINES
+    per = make_policy("gaslaw-rig", env)
+    assert isinstance(per, GasLawPerRigPolicy)
+    per.begin_episodes(conds)
+    assert per.table(()) == pytest.approx({r: k for r, k in GasLawPolicy(
+        env.observation_layout()).k.items()}, rel=1e-12)  # the thesis rig: the shipped table
+    assert per.k[1] != per.k[0] and len(per._tables) == 2
+    out = run_first_episodes(env, per, conds, 0)
+    assert all(math.isfinite(v) for v in out["objective"])
+
+
+def test_a_step_that_goes_non_physical_is_retried_with_half_the_substep(monkeypatch):
+    env = CutOffVectorEnv(num_envs=2, autoreset=False)
+    env.reset(seed=0)
+    from pneugym.envs import episode as EP
+
+    real, calls = EP.step_batch, []
+
+    def failing(Y, P, D, E, acts, rewards, status, W):  # row 1 fails once
+        real(Y, P, D, E, acts, rewards, status, W)
+        if not calls:
+            calls.append(1)
+            status[1] = L.STATUS_NONPOSITIVE
+    monkeypatch.setattr(EP, "step_batch", failing)
+    dt = env.P[1, L.P_DT]
+    with pytest.warns(RigWarning, match="retried with half the substep"):
+        env.step(np.zeros(2, dtype=np.int64))
+    assert env.P[1, L.P_DT] == dt / 2 and env.P[0, L.P_DT] == dt
+    assert env.D[1, L.D_T] == pytest.approx(env.D[0, L.D_T])  # the step was taken once
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RigWarning)
+        env.step(np.zeros(2, dtype=np.int64))
