@@ -161,3 +161,56 @@ def test_a_step_that_goes_non_physical_is_retried_with_half_the_substep(monkeypa
     with warnings.catch_warnings():
         warnings.simplefilter("error", RigWarning)
         env.step(np.zeros(2, dtype=np.int64))
+
+
+def test_observe_rig_gives_the_datasheet_and_the_strokes_events():
+    from pneugym.envs.cutoff import RIG_OBSERVATION
+
+    env = CutOffVectorEnv(num_envs=2, preset="family", observe_rig=True, autoreset=False)
+    obs, _ = env.reset(seed=1)
+    lay = env.observation_layout()
+    assert [f["name"] for f in lay["rig_features"]] == [f.name for f in RIG_OBSERVATION]
+    assert lay["size"] == 7 + len(RIG_OBSERVATION) and obs.shape == (2, lay["size"])
+    rigs = [c.rig(env.rig) for c in env.conditions]
+    assert obs[:, 7] == pytest.approx([r.line.length_m / 5.0 for r in rigs], rel=1e-6)
+    assert obs[:, 10] == pytest.approx([c.load_mass_kg / 40.0 for c in env.conditions], rel=1e-6)
+    t_rise = None
+    for _ in range(200):
+        obs, *_ = env.step(np.zeros(2, dtype=np.int64))
+        t = obs[:, 5] * env.time_limit_s
+        if t_rise is None and (obs[:, 11] < t - 1e-6).all():
+            t_rise = obs[:, 11].copy()  # fixed once the pressure rose
+    assert t_rise is not None and (obs[:, 11] == t_rise).all()
+    delays = [r.valve.delay_s for r in rigs]
+    assert all(d <= tr < d + 0.1 for d, tr in zip(delays, t_rise))  # it reads the valve delay
+    assert (obs[:, 12] > obs[:, 11]).all() and (obs[:, 13] > 0).all()  # breakaway after the rise
+
+
+def test_models_without_rig_features_run_where_the_rig_is_observed(tmp_path):
+    from agents.learned import LayoutMismatchError, LearnedPolicy
+
+    plain = CutOffVectorEnv(num_envs=1, history=2).observation_layout()
+    rich = CutOffVectorEnv(num_envs=1, observe_rig=True).observation_layout()
+
+    class Echo(LearnedPolicy):
+        def act_model(self, obs):
+            self.seen = obs
+            return np.zeros(obs.shape[0], dtype=np.int64)
+
+    pol = Echo(rich, plain)
+    obs = np.arange(2 * rich["size"], dtype=np.float32).reshape(2, -1)
+    pol.act(obs)
+    assert pol.seen.shape == (2, plain["size"])  # rig columns dropped, then stacked
+    assert (pol.seen[:, -7:] == obs[:, :7]).all()
+    with pytest.raises(LayoutMismatchError, match="observe_rig differs"):
+        Echo(plain, rich)  # a family model cannot run without what it reads
+
+
+@pytest.mark.parametrize("name", ["esac-family", "ppo-family"])
+def test_family_runs_have_valid_configurations(name):
+    from agents.training import CONFIG_DIR, NAMED_RUNS, load_config
+
+    algo, cfg_file = NAMED_RUNS[name]
+    for budget in ("default", "quick"):
+        cfg = load_config(algo, budget, CONFIG_DIR / cfg_file, seed=0)
+        assert cfg["preset"] == "family" and cfg["env"]["observe_rig"] is True

@@ -14,8 +14,10 @@ from agents.base import Policy
 from agents.registry import load_policy
 from pneugym.envs.cutoff import CutOffVectorEnv
 
-DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "esac", "ppo", "dqn", "oracle"]
-LEARNED = ("esac", "ppo", "dqn")  # a bare name: the model under --runs, trained if missing
+DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "gaslaw-rig", "esac", "ppo",
+                    "esac-family", "oracle"]
+#: a bare name: the model under --runs, trained if missing (agents.training.NAMED_RUNS)
+LEARNED = ("esac", "ppo", "dqn", "esac-family", "ppo-family")
 
 
 def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:

@@ -22,7 +22,7 @@ One job per module, in the order a run meets them:
 Importing this package loads neither torch nor stable-baselines3 (training does).
 """
 from .config import ALGOS, CONFIG_DIR, ConfigError, check_config, load_config
-from .ondemand import DEFAULT_POLICIES, ensure_trained, model_path, training_plan
+from .ondemand import DEFAULT_POLICIES, NAMED_RUNS, ensure_trained, model_path, training_plan
 from .rundir import RUN_FILE, atomic_write_json, read_run, replay_file, run_files
 from .seeds import MAX_TRAINING_SEED, check_seed
 from .signals import StopRequest, TrainingInterrupted, stop_on_signals
@@ -31,6 +31,7 @@ from .validation import (choose_decision, decision_grids, oracle_fraction, sweep
                          validation_conditions, validation_references)
 
 __all__ = ["ALGOS", "CONFIG_DIR", "ConfigError", "check_config", "load_config", "DEFAULT_POLICIES",
+           "NAMED_RUNS",
            "ensure_trained", "model_path", "training_plan", "RUN_FILE", "atomic_write_json",
            "read_run", "replay_file", "run_files", "MAX_TRAINING_SEED", "check_seed",
            "StopRequest", "TrainingInterrupted", "stop_on_signals", "train", "choose_decision",

@@ -6,12 +6,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Sequence
 
-from .config import ALGOS, load_config
+from .config import CONFIG_DIR, load_config
 from .resume import occupied, resumable, resume_seed
 from .rundir import read_run
 from .trainer import train
 
-DEFAULT_POLICIES = ("esac", "ppo", "dqn")  # what evaluate.py trains on demand
+#: the learned policies evaluate.py trains on demand: name -> (algorithm, its configs/ file). The
+#: ``-family`` ones learn on the rig family (preset ``family``) and read the rig's datasheet values
+NAMED_RUNS: dict[str, tuple[str, str]] = {
+    "esac": ("esac", "esac.yaml"), "ppo": ("ppo", "ppo.yaml"), "dqn": ("dqn", "dqn.yaml"),
+    "esac-family": ("esac", "esac-family.yaml"), "ppo-family": ("ppo", "ppo-family.yaml")}
+DEFAULT_POLICIES = ("esac", "ppo", "esac-family")  # what evaluate.py trains on demand
 
 
 def model_path(run_dir: str | Path) -> Path | None:
@@ -39,24 +44,25 @@ def training_plan(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path 
                          f"trained into) folders under --runs: give a folder")
     plan: dict[str, tuple[str, Path]] = {}
     for name in names:
-        if name not in ALGOS:
-            raise ValueError(f"unknown learned policy {name!r}; choose from {list(ALGOS)}")
+        if name not in NAMED_RUNS:
+            raise ValueError(f"unknown learned policy {name!r}; choose from {list(NAMED_RUNS)}")
+        algo, config = NAMED_RUNS[name][0], CONFIG_DIR / NAMED_RUNS[name][1]
         d = runs / name
         if d.exists() and not d.is_dir():
             raise ValueError(f"{d} is a file; the {name} run lives in the folder {d}: move the "
                              f"file, or give another --runs")
         p = model_path(d) if d.is_dir() else None
         # a budget or configuration train() would refuse (checked whole only if it will train)
-        load_config(name, budget, seed=0, rig=rig, check=p is None)
+        load_config(algo, budget, config, seed=0, rig=rig, check=p is None)
         if p is not None:
             plan[name] = ("ready", p)
             continue
         prev = read_run(d) if d.is_dir() else None
-        resume = bool(prev and name != "esac" and prev.get("algo") == name
+        resume = bool(prev and algo != "esac" and prev.get("algo") == algo
                       and prev.get("checkpoint"))
         try:
             if resume:
-                resumable(d, prev, name)
+                resumable(d, prev, algo)
                 resume_seed(d, prev)
             elif d.is_dir() and any(d.iterdir()):
                 raise ValueError(occupied(d, prev))
@@ -81,8 +87,9 @@ def ensure_trained(names: Sequence[str] = DEFAULT_POLICIES, runs_dir: str | Path
         print(f"== no trained {name} under {p}: "
               f"{'resuming' if what == 'resume' else 'training'} it ({budget} budget)",
               flush=True)
-        train(name, p, seed=seed, budget=budget, progress=progress, resume=what == "resume",
-              rig=rig)
+        algo, config = NAMED_RUNS[name]
+        train(algo, p, seed=seed, budget=budget, progress=progress, resume=what == "resume",
+              rig=rig, config=CONFIG_DIR / config)
         m = model_path(p)
         if m is None:
             raise RuntimeError(f"training {name} into {p} did not leave a finished model")

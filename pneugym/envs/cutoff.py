@@ -84,14 +84,26 @@ OBSERVATION: tuple[Feature, ...] = (
     Feature("time", "s", math.nan, "0", "time since the extend command / time_limit_s"),
     Feature("supply_cut", "-", 1.0, "0", "1 while the supply is cut"),
 )
-#: The rig's datasheet values (``observe_rig=True``): what its rig file states, fixed for an
-#: episode; a policy trained on a family of rigs learns from them which rig it is on.
+#: What a policy may know of the rig (``observe_rig=True``): the datasheet values its rig file
+#: states (fixed for an episode), then what the stroke so far tells of the rest (from the noisy
+#: sensors: when the driving pressure rose, i.e. the valve delay; when the piston broke away, and
+#: the pressure difference that moved it, i.e. friction and load). Before an event the feature
+#: holds the time (or pressure difference) now. A policy trained on a family of rigs learns from
+#: them which rig it is on.
 RIG_OBSERVATION: tuple[Feature, ...] = (
     Feature("line_length", "m", 5.0, "0", "supply line length"),
     Feature("line_diameter", "m", 0.008, "0", "supply line inner diameter"),
     Feature("dead_volume", "m3", 5e-4, "0", "stated dead volume of the driving chamber"),
     Feature("payload", "kg", 40.0, "0", "the load the cylinder moves"),
+    Feature("t_pressure_rise", "s", 1.0, "0",
+            "time the driving-port pressure first exceeded 0.1 bar gauge"),
+    Feature("t_breakaway", "s", 1.0, "0", "time the piston first passed 2 mm"),
+    Feature("dp_breakaway", "Pa", PRESSURE_SCALE_PA, "0",
+            "driving minus exhaust port pressure when the piston first passed 2 mm"),
 )
+N_DATASHEET = 4  # the first RIG_OBSERVATION features: the rig file's values
+RISE_PA = 1e4  # gauge pressure [Pa] that marks the valve's opening in the driving port
+BREAKAWAY_M = 2e-3  # position [m] that marks the piston's breakaway
 #: Privileged features (``observe_params=True``): the true conditions of the episode.
 PARAM_OBSERVATION: tuple[Feature, ...] = (
     Feature("load_mass", "kg", 30.0, "0", "payload"),
@@ -255,6 +267,7 @@ class _CutOffCore:
         self._noise = np.zeros((n, 3))
         self._noise_std = np.zeros((n, 3))
         self._x_prev = np.zeros(n)
+        self._events = np.full((n, 3), np.nan)  # t rise, t breakaway, dp breakaway (observe_rig)
         self._scales = np.array([self.rig.cylinder.stroke_m, VELOCITY_SCALE_M_S,
                                  PRESSURE_SCALE_PA, self.time_limit_s])
         n_extra = (len(RIG_OBSERVATION) if observe_rig else 0) + (
@@ -330,10 +343,11 @@ class _CutOffCore:
         k = 0
         if self.observe_rig:
             r = cond.rig(self.rig)
-            self._extra[i, :len(RIG_OBSERVATION)] = (
+            self._extra[i, :N_DATASHEET] = (
                 r.line.length_m / 5.0, r.line.diameter_m / 0.008,
                 (r.cylinder.dead_volume_m3 + r.effects.dead_volume_m3) / 5e-4,
                 r.load_mass_kg / 40.0)
+            self._events[i] = np.nan
             k = len(RIG_OBSERVATION)
         if self.observe_params:
             self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
@@ -346,6 +360,25 @@ class _CutOffCore:
             self._noise[rows] = rng.standard_normal((rows.size, 3)) * self._noise_std[rows]
         EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
                    fresh, self._hist, self._extra, OBS_BOUND, self._obs)
+        if self.observe_rig:
+            self._observe_events(rows)
+
+    def _observe_events(self, rows: np.ndarray) -> None:
+        """The stroke-so-far features of :data:`RIG_OBSERVATION` from the latest (noisy) sample
+        of episodes ``rows``, written into their observations."""
+        h = self._hist[rows, -1]
+        x, t = h[:, 0] * self._scales[0], h[:, 5] * self._scales[3]
+        pd, dp = h[:, 2] * PRESSURE_SCALE_PA, (h[:, 2] - h[:, 3]) * PRESSURE_SCALE_PA
+        ev = self._events[rows]
+        rise = np.isnan(ev[:, 0]) & (pd > RISE_PA)
+        ev[rise, 0] = t[rise]
+        moved = np.isnan(ev[:, 1]) & (x > BREAKAWAY_M)
+        ev[moved, 1], ev[moved, 2] = t[moved], dp[moved]
+        self._events[rows] = ev
+        now = np.stack([t, t, dp], axis=1)
+        vals = np.where(np.isnan(ev), now, ev) / np.array([1.0, 1.0, PRESSURE_SCALE_PA])
+        col = self.history * EP.NF + N_DATASHEET
+        self._obs[rows, col:col + 3] = np.clip(vals, -OBS_BOUND, OBS_BOUND)
 
     def _retry(self, i: int, action: int, y0: np.ndarray, d0: np.ndarray, e0: np.ndarray
                ) -> float:
