@@ -252,6 +252,10 @@ class LearnedPolicy(Policy):
 
     def model_obs(self, obs: np.ndarray) -> np.ndarray:
         """``obs`` (B, env size) in the model's layout (stacked when needed)."""
+        if obs.ndim != 2 or obs.shape[1] != self.read.size:
+            raise LayoutMismatchError(f"{self.source} was built for observations of size "
+                                      f"{self.read.size}, got shape {obs.shape}: load it for "
+                                      f"the environment it runs in")
         if self._rig_cols is not None:
             obs = np.delete(obs, self._rig_cols, axis=1)
         if self._stack is None:

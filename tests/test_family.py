@@ -214,3 +214,9 @@ def test_family_runs_have_valid_configurations(name):
     for budget in ("default", "quick"):
         cfg = load_config(algo, budget, CONFIG_DIR / cfg_file, seed=0)
         assert cfg["preset"] == "family" and cfg["env"]["observe_rig"] is True
+
+
+def test_points_suite_runs_the_transfer_operating_points_on_the_rig():
+    cells = suite_cells("points")
+    assert [lab for lab, _ in cells] == [f"{b:g}bar-{m:g}kg" for b, m in TRANSFER_POINTS]
+    assert all(space.rig_changes == () and space.family is None for _, space in cells)

@@ -37,7 +37,7 @@ from pneugym.rigfile import as_rig
 from .outputs import print_table, write_outputs
 from .run import evaluate
 from .specs import DEFAULT_POLICIES, check_policy_specs, load_models, resolve_learned
-from .suites import EVAL_SEED, SUITES
+from .suites import EVAL_SEED, EXTRA_SUITES, SUITES
 
 
 def parser() -> argparse.ArgumentParser:
@@ -51,8 +51,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--runs", default="runs", help="where learned policies are (and are trained)")
     ap.add_argument("--budget", default="quick",
                     help="train.py budget for learned policies trained on demand")
-    ap.add_argument("--suite", default="all", choices=[*SUITES, "all"],
-                    help="which suite to run (default all: nominal, robustness and transfer)")
+    ap.add_argument("--suite", default="all", choices=[*SUITES, *EXTRA_SUITES, "all"],
+                    help="which suite to run (default all: nominal, robustness and transfer; "
+                         "points: the transfer suite's operating points on the --rig rig)")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
     ap.add_argument("--seed", type=int, default=EVAL_SEED,
                     help=f"seed of the episodes (default {EVAL_SEED:,}; keep >= {EVAL_SEED:,})")

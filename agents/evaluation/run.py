@@ -18,7 +18,7 @@ from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
 from pneugym.provenance import provenance
 
-from .specs import check_policy_specs, make_named_policy, parse_spec
+from .specs import check_policy_specs, evaluation_env_config, make_named_policy, parse_spec
 from .suites import NOISE, suite_episodes
 
 
@@ -57,9 +57,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     """Run every policy on every suite; returns the results.json structure. ``preloaded``:
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
     ``progress``: a progress bar over the policies of each suite."""
-    # the rig's datasheet values are observed: models trained on a family of rigs read them, the
-    # others never see them (agents.learned drops their columns)
-    env_config = {"observe_rig": True, **dict(env_config or {})}
+    env_config = evaluation_env_config(env_config)
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)

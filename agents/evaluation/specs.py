@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from agents import BASELINES, make_policy
 from agents.base import Policy
@@ -18,6 +18,13 @@ DEFAULT_POLICIES = ["conventional", "endstroke", "gaslaw", "gaslaw-rig", "esac",
                     "esac-family", "oracle"]
 #: a bare name: the model under --runs, trained if missing (agents.training.NAMED_RUNS)
 LEARNED = ("esac", "ppo", "dqn", "esac-family", "ppo-family")
+
+
+def evaluation_env_config(env_config: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The environment options every evaluation runs with: ``env_config`` and the rig's
+    datasheet values observed (``observe_rig``), which models trained on a family of rigs read
+    and the others never see (:class:`agents.learned.LearnedPolicy` drops their columns)."""
+    return {"observe_rig": True, **dict(env_config or {})}
 
 
 def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:
@@ -100,7 +107,7 @@ def load_models(specs: Sequence[str], runs: str | Path = "runs", budget: str = "
     under ``runs`` is finished; for the others, check that train.py can train or resume them
     (:func:`agents.training.training_plan`). Returns the loaded policies by name; raises ValueError
     naming the spec and what is wrong."""
-    probe = CutOffVectorEnv(num_envs=1, **dict(env_config or {}))
+    probe = CutOffVectorEnv(num_envs=1, **evaluation_env_config(env_config))
     out: dict[str, Policy] = {}
     bare = [s for s in specs if s in LEARNED]
     todo: list[tuple[str, str, Path | str, dict[str, Any]]] = []

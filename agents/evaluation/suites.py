@@ -7,7 +7,8 @@
   friction -30 % / +30 %, valve delay -20 % / +20 %;
 - ``transfer``: rigs no policy was trained on (:func:`transfer_rigs`): the thesis rig, held-out
   draws of the rig family, rigs beyond its edges and model forms it does not draw, each at four
-  operating points (:data:`TRANSFER_POINTS`), each episode with its own oracle.
+  operating points (:data:`TRANSFER_POINTS`), each episode with its own oracle;
+- ``points`` (only when named): those operating points on the environment's own rig.
 
 Each cell's episodes are drawn from their own seeded generator (:func:`suite_episodes`), from
 :data:`EVAL_SEED` up: seeds no training or calibration uses."""
@@ -54,6 +55,9 @@ TRANSFER_FORMS: dict[str, dict[str, Any]] = {
     "form-stribeck-sensor-lag": {"effects.stribeck_force_n": 50.0, "effects.sensor_lag_s": 0.01},
 }
 SUITES = ("nominal", "robustness", "transfer")
+#: suites that only run when named: ``points``, the transfer suite's operating points on the
+#: environment's own rig (``--rig``), for a policy retrained for that rig
+EXTRA_SUITES = ("points",)
 #: the slowest conventional stroke [s] of an edge or model-form rig (the episodes' limit is 4 s)
 EDGE_MAX_CONVENTIONAL_TIME_S = 3.2
 
@@ -124,6 +128,8 @@ def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, Con
                 (f"{b:g}bar-valve-delay+20%", _fixed(b, 10.0, valve_delay_scale=1.2)),
             ]
         return cells
+    if suite == "points":
+        return [(f"{b:g}bar-{m:g}kg", _fixed(b, m)) for b, m in TRANSFER_POINTS]
     if suite == "transfer":
         return [(f"{name}/{b:g}bar-{m:g}kg", _fixed(b, m, rig_changes=changes))
                 for name, changes in transfer_rigs(rig).items() for b, m in TRANSFER_POINTS]
