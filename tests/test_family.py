@@ -220,3 +220,14 @@ def test_points_suite_runs_the_transfer_operating_points_on_the_rig():
     cells = suite_cells("points")
     assert [lab for lab, _ in cells] == [f"{b:g}bar-{m:g}kg" for b, m in TRANSFER_POINTS]
     assert all(space.rig_changes == () and space.family is None for _, space in cells)
+
+
+def test_a_suite_of_several_rigs_plots_the_oracle_fraction_per_rig(tmp_path):
+    from agents.evaluation.plots import plot_per_rig
+
+    def pol(*fr):
+        return {"per_rig": {r: {"oracle_fraction": f} for r, f in zip(("a", "b"), fr)}}
+    suite = {"policies": {"conventional": pol(0.0, 0.0), "esac": pol(0.9, -4.0),
+                          "gaslaw": pol(None, 0.5), "oracle": pol(1.0, 1.0)}}
+    plot_per_rig("transfer", suite, tmp_path)
+    assert (tmp_path / "transfer_oracle_fraction_per_rig.png").stat().st_size > 5000

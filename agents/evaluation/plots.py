@@ -39,6 +39,9 @@ def plot_results(results: dict[str, Any], out: Path) -> None:
         ax.legend(fontsize=8)
         fig.savefig(out / f"{suite}_saving_vs_time.png", dpi=120, bbox_inches="tight")
         plt.close(fig)
+    for suite, s in results["suites"].items():
+        if any("per_rig" in p for p in s["policies"].values()):
+            plot_per_rig(suite, s, out)
     rob = results["suites"].get("robustness")
     if rob:
         names = list(rob["policies"])
@@ -67,6 +70,33 @@ def plot_results(results: dict[str, Any], out: Path) -> None:
         fig.savefig(out / "robustness_heatmaps.png", dpi=110)
         plt.close(fig)
     plot_examples(results, out)
+
+
+def plot_per_rig(suite: str, s: dict[str, Any], out: Path) -> None:
+    """Oracle fraction per rig and policy (a suite of several rigs: ``per_rig``), clipped to
+    [-1, 1.05] so that one rig's failure does not flatten the others' bars."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in s["policies"] if n not in ("conventional", "oracle")]
+    rigs = list(s["policies"]["oracle"]["per_rig"])
+    fig, ax = plt.subplots(figsize=(2.0 + 0.75 * len(rigs), 4.5))
+    w = 0.8 / max(1, len(names))
+    for j, name in enumerate(names):
+        vals = [s["policies"][name]["per_rig"][r]["oracle_fraction"] for r in rigs]
+        vals = [np.nan if v is None else min(max(v, -1.0), 1.05) for v in vals]
+        ax.bar(np.arange(len(rigs)) + j * w, vals, w, label=name)
+    ax.set_xticks(np.arange(len(rigs)) + 0.4 - w / 2, rigs, rotation=35, ha="right", fontsize=8)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_ylim(-1.0, 1.1)
+    ax.set_ylabel("oracle fraction (clipped to [-1, 1.05])")
+    ax.set_title(f"{suite} suite: oracle fraction per rig", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / f"{suite}_oracle_fraction_per_rig.png", dpi=110)
+    plt.close(fig)
 
 
 def plot_examples(results: dict[str, Any], out: Path) -> None:
