@@ -64,10 +64,14 @@ def read_calibration(path: Path | str = CALIBRATION_FILE) -> dict[str, Any]:
     return data
 
 
+def k_table(calibration: Mapping[str, Any]) -> dict[float, float]:
+    """``{supply_bar_gauge: K}`` of a calibration (:func:`calibrate`'s result or a file's)."""
+    return {float(r["supply_bar_gauge"]): float(r["k"]) for r in calibration["table"]}
+
+
 def load_calibration(path: Path | str = CALIBRATION_FILE) -> dict[float, float]:
     """``{supply_bar_gauge: K}`` from a calibration file."""
-    data = read_calibration(path)
-    return {float(r["supply_bar_gauge"]): float(r["k"]) for r in data["table"]}
+    return k_table(read_calibration(path))
 
 
 class GasLawPolicy(Policy):
@@ -183,9 +187,9 @@ class GasLawPerRigPolicy(GasLawPolicy):
             from pneugym.envs.family import apply_changes
 
             rig = apply_changes(self.rig, changes)
-            res = calibrate(self.SUPPLIES_BAR, env_config={**self.env_config, "rig": rig},
-                            seed=self.seed, progress=False)
-            self._tables[changes] = {r["supply_bar_gauge"]: r["k"] for r in res["table"]}
+            self._tables[changes] = k_table(calibrate(
+                self.SUPPLIES_BAR, env_config={**self.env_config, "rig": rig}, seed=self.seed,
+                progress=False))
         return self._tables[changes]
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:

@@ -86,12 +86,16 @@ def trained_rig(policy: Policy, run: dict | None):
 
 
 def check_rig(policy: Policy, run: dict | None, env) -> None:
-    """Warn (:class:`RigMismatchWarning`) when ``env``'s rig differs from the one ``policy`` was
-    trained on, naming the differences; operating-point fields (supply, load) are not part of a
-    rig's identity (the conditions set them)."""
+    """Warn (:class:`RigMismatchWarning`) when ``env``'s rig lies outside what ``policy`` was
+    trained on, naming the differences: another rig than its own, or, for a policy trained on
+    the rig family (preset ``family``), a rig outside the family's ranges or differing in what
+    the family does not vary. Operating-point fields (supply, load) are not part of a rig's
+    identity (the conditions set them)."""
     import warnings
 
-    from pneugym.rigfile import describe_difference
+    from pneugym.envs.conditions import PRESETS
+    from pneugym.envs.family import FAMILY_FIELDS, apply_changes
+    from pneugym.rigfile import describe_difference, rig_fields
 
     trained = trained_rig(policy, run)
     policy.trained_rig = trained
@@ -99,11 +103,26 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
     point = {"supply_pressure_gauge_pa": here.supply_pressure_gauge_pa,
              "load_mass_kg": here.load_mass_kg,
              "effects": {"sensor_lag_s": here.effects.sensor_lag_s}}
+    preset = trained_preset(policy, run)
+    family = PRESETS[preset].family if preset in PRESETS else None
+    outside: list[str] = []
+    if family is not None:  # the family's own fields may differ, within its ranges
+        mine = rig_fields(here)
+        trained = apply_changes(trained, tuple((k, mine[k]) for k in FAMILY_FIELDS))
+        outside = family.outside(here, trained)
     diff = describe_difference(trained.with_(**point), here)
-    if diff:
-        warnings.warn(f"{getattr(policy, 'source', 'the model')} was trained on another rig; "
-                      f"this environment's differs: {diff} (retrain it for this rig: pneugym "
-                      f"train --rig FILE)", RigMismatchWarning, stacklevel=3)
+    if diff or outside:
+        what = "; ".join(x for x in (diff, ", ".join(outside)) if x)
+        warnings.warn(f"{getattr(policy, 'source', 'the model')} was trained on "
+                      f"{'the rig family' if family else 'another rig'}; this environment's rig "
+                      f"lies outside it: {what} (retrain it for this rig: pneugym train --rig "
+                      f"FILE)", RigMismatchWarning, stacklevel=3)
+
+
+def trained_preset(policy: Policy, run: dict | None) -> str | None:
+    """The condition preset ``policy`` was trained on (its run's, or ESAC metadata's)."""
+    return getattr(policy, "trained_preset", None) or ((run or {}).get("config") or {}).get(
+        "preset")
 
 
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
@@ -128,13 +147,13 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     f = _model_file(p)
     layout = env.unwrapped.observation_layout()
     if f.suffix.lower() == ".json":  # a Gas-Law K calibration (python -m agents.gaslaw --out)
-        from .gaslaw import read_calibration
+        from .gaslaw import k_table, read_calibration
 
         if kwargs:
             raise ValueError(f"{f} is a Gas-Law calibration: it takes no overrides, got "
                              f"{sorted(kwargs)}")
         data = read_calibration(f)
-        pol = GasLawPolicy.for_env(env, k={r["supply_bar_gauge"]: r["k"] for r in data["table"]})
+        pol = GasLawPolicy.for_env(env, k=k_table(data))
         pol.source, pol.trained_rig = f"Gas-Law calibration {f}", data.get("rig")
         check_rig(pol, None, env)
         return pol

@@ -231,3 +231,35 @@ def test_a_suite_of_several_rigs_plots_the_oracle_fraction_per_rig(tmp_path):
                           "gaslaw": pol(None, 0.5), "oracle": pol(1.0, 1.0)}}
     plot_per_rig("transfer", suite, tmp_path)
     assert (tmp_path / "transfer_oracle_fraction_per_rig.png").stat().st_size > 5000
+
+
+def test_family_fields_are_what_a_draw_sets_and_outside_names_the_edges():
+    from pneugym.envs.family import FAMILY_FIELDS
+
+    fam = FAMILY.family
+    draw = FAMILY.sample(np.random.default_rng(5))
+    assert {k for k, _ in draw.rig_changes} - {"solver.dt_s"} == set(FAMILY_FIELDS)
+    assert fam.outside(draw.rig()) == [] and fam.outside(RigParams()) == []
+    rigs = transfer_rigs()
+    out = fam.outside(apply_changes(RigParams(), rigs["edge-long-line"]))
+    assert out == ["line.length_m 6.5 not in [0.3, 5]"]
+    assert fam.outside(apply_changes(RigParams(), rigs["form-leaks-heat"])) == []
+
+
+def test_a_family_model_warns_only_outside_the_family(tmp_path):
+    from agents.registry import RigMismatchWarning, check_rig
+
+    class Pol:
+        source, trained_rig, trained_preset = "m", None, "family"
+
+    rigs = transfer_rigs()
+    inside = CutOffVectorEnv(num_envs=1, rig=apply_changes(RigParams(), rigs["heldout-1"]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RigMismatchWarning)
+        check_rig(Pol(), None, inside)
+    edge = CutOffVectorEnv(num_envs=1, rig=apply_changes(RigParams(), rigs["edge-long-line"]))
+    with pytest.warns(RigMismatchWarning, match=r"rig family.*line.length_m 6.5 not in"):
+        check_rig(Pol(), None, edge)
+    form = CutOffVectorEnv(num_envs=1, rig=apply_changes(RigParams(), rigs["form-leaks-heat"]))
+    with pytest.warns(RigMismatchWarning, match="leak_piston_area_m2"):  # not in the family
+        check_rig(Pol(), None, form)

@@ -36,6 +36,17 @@ CHANGEABLE = (
 )
 
 
+#: the rig fields a :class:`RigFamily` draws (the others stay the base rig's)
+FAMILY_FIELDS = (
+    "cylinder.dead_volume_m3", "cylinder.port_area_m2", "cylinder.cushion_length_m",
+    "cylinder.cushion_factor_drive", "cylinder.cushion_factor_exhaust", "cylinder.cushion_ramp_m",
+    "line.length_m", "line.diameter_m", "line.model", "valve.area_m2", "valve.exhaust_area_m2",
+    "valve.delay_s", "valve.flow_model", "friction.static_n", "friction.coulomb_n",
+    "friction.viscous_n_s_per_m", "effects.leak_drive_area_m2",
+    "effects.heat_transfer_time_constant_s",
+)
+
+
 def apply_changes(base: RigParams, changes: tuple[Change, ...]) -> RigParams:
     """``base`` with ``changes`` (``(dotted field, value)`` pairs) applied."""
     if not changes:
@@ -203,6 +214,36 @@ class RigFamily:
         }
         return tuple(sorted(changes.items()))
 
+    def outside(self, rig: RigParams, base: RigParams | None = None) -> list[str]:
+        """The drawn quantities of ``rig`` outside this family's ranges (scales against
+        ``base``, default the thesis rig), e.g. ``["line.length_m 6.5 not in [0.3, 5]"]``."""
+        base = base or RigParams()
+        c, v, f = rig.cylinder, rig.valve, rig.friction
+        checks = (
+            ("cylinder.dead_volume_m3", c.dead_volume_m3, self.dead_volume_m3),
+            ("cylinder.port_area_m2", c.port_area_m2, tuple(
+                s * base.cylinder.port_area_m2 for s in self.port_area_scale)),
+            ("cylinder.cushion_length_m", c.cushion_length_m, self.cushion_length_m),
+            ("cylinder.cushion_factor_drive", c.cushion_factor_drive, self.cushion_factor_drive),
+            ("cylinder.cushion_factor_exhaust", c.cushion_factor_exhaust,
+             self.cushion_factor_exhaust),
+            ("line.length_m", rig.line.length_m, self.line_length_m),
+            ("line.diameter_m", rig.line.diameter_m, self.line_diameter_m),
+            ("valve.area_m2", v.area_m2, tuple(s * base.valve.area_m2
+                                               for s in self.valve_area_scale)),
+            ("valve.exhaust_area_m2", v.exhaust_area_m2, tuple(
+                s * base.valve.exhaust_area_m2 for s in self.exhaust_area_scale)),
+            ("valve delay [s]", rig.valve_delay_s, self.valve_delay_s),
+            ("friction.static_n", f.static_n, self.static_friction_n),
+            ("friction.coulomb_n", f.coulomb_n, (0.0, self.coulomb_friction_n[1])),
+            ("friction.viscous_n_s_per_m", f.viscous_n_s_per_m, self.viscous_friction_n_s_per_m),
+            ("effects.leak_drive_area_m2", rig.effects.leak_drive_area_m2,
+             (0.0, self.leak_area_m2[1])),
+        )
+        tol = 1e-9
+        return [f"{name} {val:.4g} not in [{lo:.4g}, {hi:.4g}]" for name, val, (lo, hi) in checks
+                if not lo * (1 - tol) <= val <= hi * (1 + tol)]
+
     def sample(self, rng: np.random.Generator, base: RigParams | None = None
                ) -> tuple[Change, ...]:
         """One rig's changes to ``base`` (default the thesis rig), from a fixed number of draws."""
@@ -224,4 +265,4 @@ class RigFamily:
 _DRAWS = ("v0", "port", "cl", "cfd", "cfe", "ramp", "len", "dia", "p_lumped", "valve", "exh",
           "delay", "p_iso", "fs", "fc", "kv", "p_leak", "leak", "p_heat", "tau")
 
-__all__ = ["RigFamily", "CHANGEABLE", "apply_changes", "check_changes", "checked_substep"]
+__all__ = ["RigFamily", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]
