@@ -7,6 +7,8 @@
   supply pressure;
 - :class:`~agents.oracle.OraclePolicy`: the best single cut-off time, found with privileged access
   to the episode's conditions (an upper bound for latched policies);
+- :class:`~agents.mpc.ModelPredictivePolicy`: fits the rig to the stroke so far and runs the
+  plant ahead to cut at the best time (not privileged, not trained);
 - learned (train.py): :class:`~agents.esac.ESACPolicy`, the thesis's proposed neural predictor
   (6.8), and :class:`~agents.learned.SB3Policy` for stable-baselines3 models.
 
@@ -18,9 +20,10 @@ from .baselines import ConventionalPolicy, EndStrokePolicy
 from .esac import ESACPolicy, ESACPredictor
 from .gaslaw import GasLawPolicy
 from .learned import LayoutMismatchError, LearnedPolicy, SB3Policy
+from .mpc import ModelPredictivePolicy
 from .oracle import OraclePolicy
 from .registry import BASELINES, load_policy, make_policy
 
 __all__ = ["Policy", "ObservationReader", "ConventionalPolicy", "EndStrokePolicy",
-           "GasLawPolicy", "OraclePolicy", "BASELINES", "make_policy", "load_policy",
+           "GasLawPolicy", "OraclePolicy", "ModelPredictivePolicy", "BASELINES", "make_policy", "load_policy",
            "LearnedPolicy", "SB3Policy", "ESACPolicy", "ESACPredictor", "LayoutMismatchError"]

@@ -8,7 +8,8 @@ import numpy as np
 
 class ObservationReader:
     """Reads the newest sample's features of a ``pneugym/CutOff-v0`` observation in SI units
-    (pressures gauge [Pa]), from the environment's ``observation_layout()``."""
+    (pressures gauge [Pa]), and the rig features (``observe_rig``), from the environment's
+    ``observation_layout()``."""
 
     def __init__(self, layout: Mapping[str, Any]):
         self.layout = dict(layout)
@@ -16,6 +17,9 @@ class ObservationReader:
         self.size = int(layout["size"])
         base = (int(layout["history"]) - 1) * len(feats)
         self._index = {f["name"]: (base + k, float(f["scale"])) for k, f in enumerate(feats)}
+        start = int(layout["history"]) * len(feats)
+        self._index.update({f["name"]: (start + k, float(f["scale"]))
+                            for k, f in enumerate(layout.get("rig_features") or [])})
 
     def __call__(self, obs: np.ndarray, name: str) -> np.ndarray:
         """Feature ``name`` of the newest sample of each row of ``obs`` (B, size)."""

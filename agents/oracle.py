@@ -6,11 +6,35 @@ policy at the control period's resolution, and the reference of ``oracle_fractio
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from .base import Policy, run_first_episodes
+
+
+def search_cuts(score: Callable[[dict], dict], ranges: Mapping[Any, tuple[int, int]],
+                period: float, coarse: int) -> dict[Any, dict[float, float]]:
+    """Returns of cut-off times for several cases, searched together: ``score({key: [t_cut,
+    ...]})`` gives ``{key: {t_cut: return}}`` (one batched run); each case ``key`` is tried at
+    every ``coarse``-th control step of its range ``(first, last)`` and never cutting (``inf``),
+    then at every step around its three best. Returns every case's tried cuts and returns."""
+    cands = {key: [k * period for k in range(k0, k1 + 1, coarse)] + [math.inf]
+             for key, (k0, k1) in ranges.items()}
+    scores = score(cands)
+    fine: dict[Any, list[float]] = {}
+    for key, js in scores.items():
+        k0 = ranges[key][0]
+        tried = {round(t / period) for t in js if math.isfinite(t)}
+        steps: set[int] = set()
+        for t in sorted(js, key=js.get, reverse=True)[:3]:
+            if math.isfinite(t):
+                k = int(round(t / period))
+                steps.update(range(max(k0, k - coarse + 1), k + coarse))
+        fine[key] = [k * period for k in sorted(steps - tried)]
+    for key, js in score(fine).items():
+        scores[key].update(js)
+    return scores
 
 
 class TimedCutPolicy(Policy):
@@ -86,29 +110,20 @@ class OraclePolicy(TimedCutPolicy):
                     **{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0}))
         if todo:
             window = float(self.env_config.get("decision_window_s", 0.02))
-            cands: dict[tuple, list[float]] = {}
+            ranges = {}
             for key, c in todo.items():
                 t_conv, _ = conventional_figures(c.rig(self._rig()), c.dip)
-                last = int(math.ceil((t_conv + window) / self.period)) + 1
-                cands[key] = [k * self.period for k in range(0, last + 1, self.coarse)] + [math.inf]
-            scores = self._score(todo, cands)
-            fine: dict[tuple, list[float]] = {}
-            for key, js in scores.items():
-                tried = {round(t / self.period) for t in js if math.isfinite(t)}
-                steps = set()
-                for t in sorted(js, key=js.get, reverse=True)[:3]:
-                    if math.isfinite(t):
-                        k = int(round(t / self.period))
-                        steps.update(range(max(0, k - self.coarse + 1), k + self.coarse))
-                fine[key] = [k * self.period for k in sorted(steps - tried)]
-            for key, js in self._score(todo, fine).items():
-                scores[key].update(js)
+                ranges[key] = (0, int(math.ceil((t_conv + window) / self.period)) + 1)
+            scores = search_cuts(lambda cands: self.score_cuts(todo, cands), ranges, self.period,
+                                 self.coarse)
             for key, js in scores.items():
                 t = max(js, key=js.get)
                 self._cache[key] = (float(t), float(js[t]))
         return [self._cache[c.physics_key()] for c in conditions]
 
-    def _score(self, conds: dict, cands: dict) -> dict[tuple, dict[float, float]]:
+    def score_cuts(self, conds: dict, cands: dict) -> dict[Any, dict[float, float]]:
+        """Returns of cut-off times: ``conds`` ``{key: Conditions}`` (noise-free), ``cands``
+        ``{key: [t_cut_s, ...]}``; all pairs in one batched run of the environment."""
         pairs = [(key, t) for key, ts in cands.items() for t in ts]
         out: dict[tuple, dict[float, float]] = {key: {} for key in cands}
         if not pairs:

@@ -8,11 +8,12 @@ from .base import Policy
 from .baselines import ConventionalPolicy, EndStrokePolicy
 from .gaslaw import GasLawPerRigPolicy, GasLawPolicy
 from .learned import LayoutMismatchError, SB3Policy, read_run, run_member
+from .mpc import ModelPredictivePolicy
 from .oracle import OraclePolicy
 
 BASELINES: dict[str, type[Policy]] = {
     "conventional": ConventionalPolicy, "endstroke": EndStrokePolicy, "gaslaw": GasLawPolicy,
-    "gaslaw-rig": GasLawPerRigPolicy, "oracle": OraclePolicy,
+    "gaslaw-rig": GasLawPerRigPolicy, "mpc": ModelPredictivePolicy, "oracle": OraclePolicy,
 }
 
 

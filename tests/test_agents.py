@@ -64,7 +64,8 @@ def oracle() -> OraclePolicy:
 # --- interface ------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", sorted(BASELINES))
 def test_predict_on_one_observation_and_a_batch(name):
-    env = CutOffEnv(history=2)
+    rig = name == "mpc"  # it reads the rig's datasheet values
+    env = CutOffEnv(history=2, observe_rig=rig)
     pol = make_policy(name, env)
     assert pol.name == name
     obs, _ = env.reset(seed=0)
@@ -74,7 +75,7 @@ def test_predict_on_one_observation_and_a_batch(name):
     acts, _ = pol.predict(batch)
     assert acts.shape == (5,) and acts.dtype == np.int64
     assert np.array_equal(acts, np.full(5, a))
-    vec = CutOffVectorEnv(num_envs=3, history=2)
+    vec = CutOffVectorEnv(num_envs=3, history=2, observe_rig=rig)
     assert make_policy(name, vec).read.size == pol.read.size
 
 

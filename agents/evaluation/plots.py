@@ -112,7 +112,7 @@ def plot_examples(results: dict[str, Any], out: Path) -> None:
     fig, ax = plt.subplots(2, 1, figsize=(6.5, 5), sharex=True)
     cond = Conditions(supply_pressure_gauge_pa=2.5e5)
     for name in names:
-        env = CutOffEnv(render_mode="rgb_array")
+        env = CutOffEnv(render_mode="rgb_array", observe_rig=True)  # as evaluations run
         pol = make_policy(name, env)
         obs, info = env.reset(seed=EVAL_SEED, options={"conditions": cond})
         pol.begin_episodes([cond])

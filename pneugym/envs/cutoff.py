@@ -152,8 +152,8 @@ def check_actions(actions: Any, n: int) -> np.ndarray:
     if a.shape != (n,):
         raise ValueError(f"actions must have shape ({n},), one per sub-environment; got shape "
                          f"{a.shape}")
-    if a.dtype.kind not in "biu" or not np.isin(a, (0, 1)).all():
-        bad = a if a.dtype.kind not in "biu" else a[~np.isin(a, (0, 1))]
+    if a.dtype.kind not in "biu" or not ((a == 0) | (a == 1)).all():
+        bad = a if a.dtype.kind not in "biu" else a[(a != 0) & (a != 1)]
         raise ValueError(f"actions must be integers 0 (keep) or 1 (cut off); got "
                          f"{bad.ravel()[:5]!r} (dtype {a.dtype})")
     return a.astype(np.int64)
