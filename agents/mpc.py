@@ -195,6 +195,12 @@ class ModelPredictivePolicy(TimedCutPolicy):
         return theta
 
     def _plan(self, obs: np.ndarray, rows: np.ndarray, t: np.ndarray) -> None:
+        # candidate rigs that need a smaller substep are the plan's business, not the user's
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RigWarning)
+            self._plan_rows(obs, rows, t)
+
+    def _plan_rows(self, obs: np.ndarray, rows: np.ndarray, t: np.ndarray) -> None:
         conds, ranges = {}, {}
         for i in rows:
             self._last[i] = t[i]
@@ -221,9 +227,7 @@ class ModelPredictivePolicy(TimedCutPolicy):
             return {i: {tc: float(np.mean([per[i, m][tc] for (j, m) in per if j == i]))
                         for tc in cands[i]} for i in cands}
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RigWarning)
-            scores = search_cuts(score, ranges, self.period, self.planner.coarse)
+        scores = search_cuts(score, ranges, self.period, self.planner.coarse)
         for i, js in scores.items():
             self.t_cut_s[i] = robust_best(js, self.margin * self.period)
 
