@@ -35,7 +35,6 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pneugym.envs import Conditions, conventional_figures
-from pneugym.envs.cutoff import BREAKAWAY_M
 from pneugym.envs.family import RigFamily
 from pneugym.envs.rollout import keep_traces
 from pneugym.params import RigParams
@@ -95,9 +94,8 @@ class ModelPredictivePolicy(TimedCutPolicy):
 
     ``prior_members``: draws of the :data:`HIDDEN` quantities from ``prior`` (default the
     :class:`~pneugym.envs.family.RigFamily` ranges) the plan averages over; 0: plan on the rig
-    file's values alone. ``after_breakaway_periods``: control periods after the piston passed
-    2 mm before the first
-    fit; ``replan_periods``: control periods between re-fits (and re-plans) until the cut;
+    file's values alone. ``after_breakaway_periods``: control periods after breakaway (the
+    observation's ``t_breakaway``) before the first fit; ``replan_periods``: control periods between re-fits (and re-plans) until the cut;
     ``margin_periods``: half-width of the robust choice; ``fit_evals`` / ``refit_evals``: batched
     trace evaluations of the first and of each later fit; ``coarse``: the plan's coarse grid
     in control periods."""
@@ -117,14 +115,14 @@ class ModelPredictivePolicy(TimedCutPolicy):
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
                 raise ValueError(f"{name} = {v!r} must be an integer >= {lo}")
         names = {f["name"] for f in layout.get("rig_features") or []}
-        if not set(DATASHEET) <= names:
+        if not {*DATASHEET, "t_breakaway"} <= names:
             raise ValueError("the model-predictive policy reads the rig's datasheet values from "
                              "the observation: make the environment with observe_rig=True (as "
                              "evaluate.py does)")
         self.env_config = {k: v for k, v in dict(env_config or {}).items()
                            if k not in ("preset", "conditions", "render_mode")}
         self.planner = OraclePolicy(layout, self.env_config, coarse=coarse, seed=seed)
-        self.base: RigParams = self.planner._rig()
+        self.base: RigParams = self.planner.base_rig
         self.period = float(layout["control_period_s"])
         self.window = float(self.env_config.get("decision_window_s", 0.02))
         self.replan, self.margin = replan_periods, margin_periods
@@ -145,7 +143,6 @@ class ModelPredictivePolicy(TimedCutPolicy):
             self._u[i] = None
         self.t_cut_s[rows] = math.inf
         self._last[rows] = -math.inf
-        self._moved_at[rows] = math.inf
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         n = obs.shape[0]
@@ -155,17 +152,17 @@ class ModelPredictivePolicy(TimedCutPolicy):
             self._trace: list[list[tuple[float, ...]]] = [[] for _ in range(n)]
             self._u: list[np.ndarray | None] = [None] * n
             self.t_cut_s = np.full(n, math.inf)
-            self._last, self._moved_at = np.full(n, -math.inf), np.full(n, math.inf)
+            self._last = np.full(n, -math.inf)
         started = np.array([bool(tr) and t[i] < tr[-1][0] for i, tr in enumerate(self._trace)])
         self._reset_rows(np.flatnonzero(started))
         x, pd, pe = (self.read(obs, k) for k in ("position", "p_drive", "p_exhaust"))
         for i in range(n):
             self._trace[i].append((t[i], x[i], pd[i], pe[i]))
-        moved = np.isinf(self._moved_at) & (x > BREAKAWAY_M)
-        self._moved_at[moved] = t[moved]
+        tb = self.read(obs, "t_breakaway")  # the time now until the piston has broken away
+        moved = tb < t - self._half
         cut = self.read(obs, "supply_cut") > 0.5
         eps = 1e-9
-        due = np.flatnonzero(~cut & (t >= self._moved_at + self.after * self.period - eps)
+        due = np.flatnonzero(moved & ~cut & (t >= tb + self.after * self.period - eps)
                              & (t >= self._last + self.replan * self.period - eps)
                              & (t < self.t_cut_s - self._half))
         if due.size:

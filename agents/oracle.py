@@ -80,7 +80,9 @@ class OraclePolicy(TimedCutPolicy):
         u = env.unwrapped
         return cls(u.observation_layout(), env_config=u.config, **kwargs)
 
-    def _rig(self):
+    @property
+    def base_rig(self):
+        """The evaluated environment's rig (what each episode's ``rig_changes`` apply to)."""
         from pneugym.envs.cutoff import CutOffVectorEnv
 
         if not hasattr(self, "_base_rig"):
@@ -112,7 +114,7 @@ class OraclePolicy(TimedCutPolicy):
             window = float(self.env_config.get("decision_window_s", 0.02))
             ranges = {}
             for key, c in todo.items():
-                t_conv, _ = conventional_figures(c.rig(self._rig()), c.dip)
+                t_conv, _ = conventional_figures(c.rig(self.base_rig), c.dip)
                 ranges[key] = (0, int(math.ceil((t_conv + window) / self.period)) + 1)
             scores = search_cuts(lambda cands: self.score_cuts(todo, cands), ranges, self.period,
                                  self.coarse)
