@@ -4,6 +4,7 @@
     pneugym train --algo esac --out runs/esac
     pneugym discrepancy runs/ --out report/
     pneugym validate --out validation/
+    pneugym replay measured/ --policy gaslaw --rig rig.yaml
     pneugym <command> --help                  # options and examples of one command
 
 This module is the top of the dependency graph: it imports the command it runs, and only then
@@ -25,6 +26,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("pneugym.calibrate", "fit the rig parameters the thesis does not give"),
     "gaslaw": ("agents.gaslaw", "calibrate the Gas-Law rule's K per supply pressure"),
     "rig": ("pneugym.rigfile", "check a rig file and show how it differs from the thesis rig"),
+    "replay": ("pneugym.deploy.replay",
+               "run a controller over measured runs: when it would cut, what that saves"),
 }
 
 

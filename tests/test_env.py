@@ -19,7 +19,8 @@ from pneugym.envs.cutoff import OBS_BOUND, CutOffEnv
 from pneugym.physics import layout as L
 from pneugym.physics import system as K
 
-STEP_KEYS = {"time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut"}
+STEP_KEYS = {"time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut", "measured_x_m",
+             "measured_p_drive_pa", "measured_p_exhaust_pa"}
 FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg",
               "stroke_time_s", "conventional_stroke_time_s", "time_increase", "cutoff_time_s",
               "stalled", "stick_slip_events", "completed"}
@@ -265,7 +266,8 @@ def test_info_keys_and_types():
              "time_increase": float, "cutoff_time_s": float, "stalled": bool,
              "stick_slip_events": int, "completed": bool, "objective": float,
              "time_s": float, "position_m": float, "p_drive_pa": float, "p_exhaust_pa": float,
-             "supply_cut": bool}
+             "supply_cut": bool, "measured_x_m": float, "measured_p_drive_pa": float,
+             "measured_p_exhaust_pa": float}
     for info in out["infos"]:
         for k, v in info.items():
             if k != "conditions":

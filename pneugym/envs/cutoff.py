@@ -115,6 +115,31 @@ _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
 
+def datasheet_features(rig: RigParams) -> tuple[float, float, float, float]:
+    """The first :data:`N_DATASHEET` features of :data:`RIG_OBSERVATION` for ``rig``, scaled:
+    line length and diameter, stated dead volume, payload (what its rig file says)."""
+    return (rig.line.length_m / 5.0, rig.line.diameter_m / 0.008,
+            (rig.cylinder.dead_volume_m3 + rig.effects.dead_volume_m3) / 5e-4,
+            rig.load_mass_kg / 40.0)
+
+
+def stroke_events(events: np.ndarray, newest: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """The stroke-so-far features of :data:`RIG_OBSERVATION` (B, 3), scaled and clipped, from
+    the newest sample's features ``newest`` (B, NF) of :func:`pneugym.envs.episode.sense`.
+    ``events`` (B, 3): time of the pressure rise [s], time of the breakaway [s] and the pressure
+    difference then [Pa], NaN until they happen; updated in place."""
+    x, t = newest[:, 0] * scales[0], newest[:, 5] * scales[3]
+    pd = newest[:, 2] * PRESSURE_SCALE_PA
+    dp = (newest[:, 2] - newest[:, 3]) * PRESSURE_SCALE_PA
+    rise = np.isnan(events[:, 0]) & (pd > RISE_PA)
+    events[rise, 0] = t[rise]
+    moved = np.isnan(events[:, 1]) & (x > BREAKAWAY_M)
+    events[moved, 1], events[moved, 2] = t[moved], dp[moved]
+    now = np.stack([t, t, dp], axis=1)
+    vals = np.where(np.isnan(events), now, events) / np.array([1.0, 1.0, PRESSURE_SCALE_PA])
+    return np.clip(vals, -OBS_BOUND, OBS_BOUND)
+
+
 RESET_OPTIONS = ("conditions",)
 MAX_HISTORY = 1000  # samples per observation (5 s at 5 ms)
 _MAX_OPTION_HINT = {"control_period_s": (1.0, "ms given as s? (5 ms = 0.005 s)"),
@@ -342,11 +367,7 @@ class _CutOffCore:
                               cond.pressure_noise_pa)
         k = 0
         if self.observe_rig:
-            r = cond.rig(self.rig)
-            self._extra[i, :N_DATASHEET] = (
-                r.line.length_m / 5.0, r.line.diameter_m / 0.008,
-                (r.cylinder.dead_volume_m3 + r.effects.dead_volume_m3) / 5e-4,
-                r.load_mass_kg / 40.0)
+            self._extra[i, :N_DATASHEET] = datasheet_features(cond.rig(self.rig))
             self._events[i] = np.nan
             k = len(RIG_OBSERVATION)
         if self.observe_params:
@@ -358,6 +379,8 @@ class _CutOffCore:
         """Sense episodes ``rows`` (with noise) and write their observations."""
         if self._noise_std[rows].any():
             self._noise[rows] = rng.standard_normal((rows.size, 3)) * self._noise_std[rows]
+        else:  # (never a noisy episode's last draw left on a noise-free one)
+            self._noise[rows] = 0.0
         EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
                    fresh, self._hist, self._extra, OBS_BOUND, self._obs)
         if self.observe_rig:
@@ -366,19 +389,11 @@ class _CutOffCore:
     def _observe_events(self, rows: np.ndarray) -> None:
         """The stroke-so-far features of :data:`RIG_OBSERVATION` from the latest (noisy) sample
         of episodes ``rows``, written into their observations."""
-        h = self._hist[rows, -1]
-        x, t = h[:, 0] * self._scales[0], h[:, 5] * self._scales[3]
-        pd, dp = h[:, 2] * PRESSURE_SCALE_PA, (h[:, 2] - h[:, 3]) * PRESSURE_SCALE_PA
         ev = self._events[rows]
-        rise = np.isnan(ev[:, 0]) & (pd > RISE_PA)
-        ev[rise, 0] = t[rise]
-        moved = np.isnan(ev[:, 1]) & (x > BREAKAWAY_M)
-        ev[moved, 1], ev[moved, 2] = t[moved], dp[moved]
+        vals = stroke_events(ev, self._hist[rows, -1], self._scales)
         self._events[rows] = ev
-        now = np.stack([t, t, dp], axis=1)
-        vals = np.where(np.isnan(ev), now, ev) / np.array([1.0, 1.0, PRESSURE_SCALE_PA])
         col = self.history * EP.NF + N_DATASHEET
-        self._obs[rows, col:col + 3] = np.clip(vals, -OBS_BOUND, OBS_BOUND)
+        self._obs[rows, col:col + 3] = vals
 
     def _retry(self, i: int, action: int, y0: np.ndarray, d0: np.ndarray, e0: np.ndarray
                ) -> float:
@@ -418,9 +433,20 @@ class _CutOffCore:
     def _step_info(self, i: int) -> dict[str, Any]:
         y, d = self.Y[i], self.D[i]
         pd, pe, _, _ = K.chamber_pressures(y, self.P[i], self._b)
+        m = self._measured(np.array([i]))[0]
         return {"time_s": float(d[L.D_T]), "position_m": float(y[self._b + L.Y_X]),
                 "p_drive_pa": float(pd), "p_exhaust_pa": float(pe),
-                "supply_cut": bool(self.E[i, EP.E_CUT] > 0.0)}
+                "supply_cut": bool(self.E[i, EP.E_CUT] > 0.0),
+                "measured_x_m": float(m[0]), "measured_p_drive_pa": float(m[1]),
+                "measured_p_exhaust_pa": float(m[2])}
+
+    def _measured(self, rows: np.ndarray) -> np.ndarray:
+        """What the sensors of episodes ``rows`` read at the last observation (B, 3): position
+        [m], driving and exhaust port pressures [Pa absolute], noise included (what a
+        :class:`pneugym.deploy.Controller` on the rig would be fed)."""
+        b = self._b
+        return np.stack([self.Y[rows, b + L.Y_X], self.Y[rows, b + L.Y_SD],
+                         self.Y[rows, b + L.Y_SE]], axis=1) + self._noise[rows]
 
     def _final_info(self, i: int) -> dict[str, Any]:
         """The episode's figures (``info`` of its last step)."""
@@ -692,6 +718,8 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         info = {"time_s": self._info[:, 0].copy(), "position_m": self._info[:, 1].copy(),
                 "p_drive_pa": self._info[:, 2].copy(), "p_exhaust_pa": self._info[:, 3].copy(),
                 "supply_cut": self.E[:, EP.E_CUT] > 0.0}
+        m = self._measured(self._all)
+        info["measured_x_m"], info["measured_p_drive_pa"], info["measured_p_exhaust_pa"] = m.T.copy()
         for k in list(info):
             info["_" + k] = mask
         return info

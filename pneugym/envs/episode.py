@@ -144,6 +144,23 @@ NF = 7  # sensor features per sample (documented in pneugym.envs.cutoff.OBSERVAT
 
 
 @njit(cache=True)
+def sense(h, x, x_prev, p_drive, p_exhaust, p_supply, pa, t, cut, period, scales):
+    """The seven features of one sample into ``h`` (NF,): measured position ``x`` [m] (and the
+    previous one, ``x_prev``, for the velocity over one ``period`` [s]), port pressures
+    ``p_drive``, ``p_exhaust`` and the supply set-point ``p_supply`` [Pa absolute, ``pa``
+    ambient], time ``t`` [s] since the extend command, ``cut`` (1 while the supply is cut),
+    each ``(value - offset) / scale`` with ``scales`` of :func:`observe`. The environment and
+    :class:`pneugym.deploy.Controller` both sense through this one function."""
+    h[0] = x / scales[0]
+    h[1] = (x - x_prev) / period / scales[1]
+    h[2] = (p_drive - pa) / scales[2]
+    h[3] = (p_exhaust - pa) / scales[2]
+    h[4] = (p_supply - pa) / scales[2]
+    h[5] = t / scales[3]
+    h[6] = cut
+
+
+@njit(cache=True)
 def observe(Y, Ps, Ds, Es, rows, noise, x_prev, scales, fresh, hist, extra, bound, obs):
     """Sense episodes ``rows`` and write their observations (float32) into ``obs``.
 
@@ -165,14 +182,10 @@ def observe(Y, Ps, Ds, Es, rows, noise, x_prev, scales, fresh, hist, extra, boun
             for s in range(k - 1):
                 for f in range(NF):
                     hist[i, s, f] = hist[i, s + 1, f]
+        sense(hist[i, k - 1], x, x_prev[i], Y[i, b + Y_SD] + noise[i, 1],
+              Y[i, b + Y_SE] + noise[i, 2], Ps[i, P_PS], pa, Ds[i, D_T], Es[i, E_CUT],
+              Es[i, E_PERIOD], scales)
         h = hist[i, k - 1]
-        h[0] = x / scales[0]
-        h[1] = (x - x_prev[i]) / Es[i, E_PERIOD] / scales[1]
-        h[2] = (Y[i, b + Y_SD] + noise[i, 1] - pa) / scales[2]
-        h[3] = (Y[i, b + Y_SE] + noise[i, 2] - pa) / scales[2]
-        h[4] = (Ps[i, P_PS] - pa) / scales[2]
-        h[5] = Ds[i, D_T] / scales[3]
-        h[6] = Es[i, E_CUT]
         x_prev[i] = x
         if fresh:
             for s in range(k - 1):
