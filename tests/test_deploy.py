@@ -263,3 +263,15 @@ def test_replay_refuses_a_coarse_recording(measured):
     with pytest.raises(ValueError, match="sampled every 10 ms, coarser than the controller's "
                                          "period"):
         replay(Controller.load("gaslaw"), [run])
+
+
+def test_load_takes_a_gaslaw_calibration_file():
+    from pathlib import Path
+
+    import agents
+
+    f = Path(agents.__file__).parent / "gaslaw_k.json"
+    c = Controller.load(f)
+    assert "Gas-Law calibration" in c.source
+    c.reset(2.5e5 + PA)
+    assert c.step(0.0, 0.0, PA, PA) == 0
