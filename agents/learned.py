@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -339,6 +339,14 @@ class SB3Policy(LearnedPolicy):
     - ``advantage`` (DQN): cut once ``Q(cut) - Q(keep) >= value``.
 
     ``value`` may be an array with one entry per observation row (sweeps).
+
+    Every rule reads the network through :meth:`network_outputs` alone: the action
+    probabilities (keep, cut) of PPO's and A2C's actor, or DQN's Q-values; ``argmax`` is their
+    argmax (SB3's deterministic ``predict``: the mode of the categorical distribution, the
+    greedy Q action; ties go to the first, keep). ``backend`` evaluates the network (default
+    the torch model, :meth:`torch_outputs`; :mod:`pneugym.deploy.export` swaps it). ``model``
+    is read for ``observation_space.shape``, ``policy.actor_inputs`` (asymmetric models) and
+    what its network gives (:func:`network_outputs_of`).
     """
 
     name = "sb3"
@@ -370,13 +378,18 @@ class SB3Policy(LearnedPolicy):
             raise LayoutMismatchError(f"{source}: the network takes {shape}, its recorded layout "
                                       f"has size {full['size']}")
         self.model = model
+        self.outputs = network_outputs_of(model)
+        if self.outputs is None:
+            raise ValueError(f"{source}: {type(model).__name__} is neither an actor-critic (PPO, "
+                             f"A2C) nor a Q-network (DQN) model")
         self.decision = check_decision(decision or {"rule": "argmax"},
                                        f"{source}: decision", per_row=True)
         rule = self.decision["rule"]
-        if rule in ("quantile", "hazard") and not hasattr(model.policy, "get_distribution"):
+        if rule in ("quantile", "hazard") and self.outputs != "probs":
             raise ValueError(f"{source}: the {rule} rule needs a stochastic policy (PPO, A2C)")
-        if rule == "advantage" and not hasattr(model, "q_net"):
+        if rule == "advantage" and self.outputs != "q_values":
             raise ValueError(f"{source}: the advantage rule needs a Q-network (DQN)")
+        self._backend: Callable[[np.ndarray], np.ndarray] | None = None
         self.value = np.asarray(self.decision.get("value", 0.5), dtype=float)
         names = [f["name"] for f in self.model_layout["features"]]
         base = (int(self.model_layout["history"]) - 1) * len(names)
@@ -392,34 +405,66 @@ class SB3Policy(LearnedPolicy):
             x = np.concatenate([x, np.zeros((x.shape[0], self._pad), dtype=x.dtype)], axis=1)
         return x
 
-    def _net_input(self, obs: np.ndarray):
-        import torch
+    @property
+    def backend(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The network evaluation: float32 observations in the network's layout (B, size) ->
+        float32 outputs (B, 2) (see :meth:`network_outputs`)."""
+        return self._backend if self._backend is not None else self.torch_outputs
 
-        return torch.as_tensor(np.asarray(obs, dtype=np.float32))
+    @backend.setter
+    def backend(self, fn: Callable[[np.ndarray], np.ndarray] | None) -> None:
+        self._backend = fn
 
-    def act_model(self, obs: np.ndarray) -> np.ndarray:
-        rule = self.decision["rule"]
-        if rule == "argmax":
-            a, _ = self.model.predict(obs, deterministic=True)
-            return a
+    def torch_outputs(self, x: np.ndarray) -> np.ndarray:
+        """The torch model's outputs (B, 2) [float32] for float32 observations ``x`` (B, size):
+        the actor's action probabilities (PPO, A2C), the Q-values (DQN)."""
         import torch
 
         with torch.no_grad():
-            if rule == "advantage":
-                q = self.model.q_net(self._net_input(obs)).numpy()
-                a = (q[:, 1] - q[:, 0]) >= self.value
-            else:
-                dist = self.model.policy.get_distribution(self._net_input(obs))
-                p = dist.distribution.probs[:, 1].numpy().astype(np.float64)
-                if rule == "hazard":
-                    return ((p >= self.value) | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
-                b = obs.shape[0]
-                if self._log_survival is None or self._log_survival.shape[0] != b:
-                    self._log_survival = np.zeros(b)
-                self._log_survival[obs[:, self._t_idx] == 0.0] = 0.0  # a new episode
-                self._log_survival += np.log1p(-np.minimum(p, 1.0 - 1e-12))
-                a = 1.0 - np.exp(self._log_survival) >= self.value
+            t = torch.as_tensor(x)
+            if self.outputs == "q_values":
+                return self.model.q_net(t).numpy()
+            return self.model.policy.get_distribution(t).distribution.probs.numpy()
+
+    def network_outputs(self, obs: np.ndarray) -> np.ndarray:
+        """The network's outputs (B, 2) [float32] for observations ``obs`` in its layout:
+        probabilities of (keep, cut) for PPO and A2C, Q-values of (keep, cut) for DQN."""
+        return np.asarray(self.backend(np.ascontiguousarray(obs, dtype=np.float32)),
+                          dtype=np.float32)
+
+    def act_model(self, obs: np.ndarray) -> np.ndarray:
+        rule = self.decision["rule"]
+        out = self.network_outputs(obs)
+        if rule == "argmax":  # np.argmax, as torch's, takes the first of equal values
+            return np.argmax(out, axis=1).astype(np.int64)
+        if rule == "advantage":
+            a = (out[:, 1] - out[:, 0]) >= self.value
+        else:
+            p = out[:, 1].astype(np.float64)
+            if rule == "hazard":
+                return ((p >= self.value) | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
+            b = obs.shape[0]
+            if self._log_survival is None or self._log_survival.shape[0] != b:
+                self._log_survival = np.zeros(b)
+            self._log_survival[obs[:, self._t_idx] == 0.0] = 0.0  # a new episode
+            self._log_survival += np.log1p(-np.minimum(p, 1.0 - 1e-12))
+            a = 1.0 - np.exp(self._log_survival) >= self.value
         return (a | (obs[:, self._cut_idx] > 0.5)).astype(np.int64)
+
+
+def network_outputs_of(model: Any) -> str | None:
+    """What an SB3 model's network gives: ``"q_values"`` (DQN: ``q_net``), ``"probs"`` (an
+    actor-critic, PPO or A2C: ``policy.get_distribution``), or None. A stand-in for a model
+    (an exported network, :func:`pneugym.deploy.export.load_exported`) declares it as
+    ``pneugym_outputs``."""
+    declared = getattr(model, "pneugym_outputs", None)
+    if declared in ("probs", "q_values"):
+        return declared
+    if hasattr(model, "q_net"):
+        return "q_values"
+    if hasattr(getattr(model, "policy", None), "get_distribution"):
+        return "probs"
+    return None
 
 
 class RunFileError(ValueError):

@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "rig": ("pneugym.rigfile", "check a rig file and show how it differs from the thesis rig"),
     "replay": ("pneugym.deploy.replay",
                "run a controller over measured runs: when it would cut, what that saves"),
+    "export": ("pneugym.deploy.export", "export a neural policy to ONNX and a numpy runtime"),
 }
 
 

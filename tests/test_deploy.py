@@ -275,3 +275,50 @@ def test_load_takes_a_gaslaw_calibration_file():
     assert "Gas-Law calibration" in c.source
     c.reset(2.5e5 + PA)
     assert c.step(0.0, 0.0, PA, PA) == 0
+
+
+#: decision rules that make the small test models cut (the DQN one at once: its Q-values barely
+#: trained)
+CUTTING = {"esac": {"margin": 0.5, "max_time_increase": 2.0},
+           "ppo": {"decision": {"rule": "quantile", "value": 0.05}},
+           "dqn": {"decision": {"rule": "advantage", "value": -0.1}}}
+
+
+@pytest.mark.parametrize("algo", ["esac", "ppo", "dqn"])
+@pytest.mark.parametrize("backend", ["onnx", "numpy"])
+def test_an_exported_controller_commands_as_the_torch_policy_in_the_environment(runs, algo,
+                                                                              backend, tmp_path):
+    """Exported (with a decision rule that cuts), then ``Controller.load(export_dir,
+    backend=...)`` without PyTorch in the loop: fed the environment's sensor readings, the same
+    valve commands as the trained model (torch) inside the environment."""
+    from pneugym.deploy.export import export
+
+    conds = conditions("robustness", 6, n=8)
+    cfg = {"observe_rig": True}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        export(Controller.load(runs[algo], **CUTTING[algo]).policy, tmp_path / "x")
+        env = CutOffVectorEnv(num_envs=len(conds), **cfg)
+        traces = environment_trace(load_policy(runs[algo], env, **CUTTING[algo]), conds, 3, cfg)
+        ctl = Controller.load(tmp_path / "x", backend=backend)
+    assert ctl.policy.backend_name == backend
+    cuts = 0
+    for cond, tr in zip(conds, traces):
+        ctl.reset(cond.supply_pressure_gauge_pa + PA, cond.load_mass_kg)
+        cmds = [ctl.step(*(tr[k][j] for k in ("t", "x", "p_drive", "p_exhaust")))
+                for j in range(tr["t"].size)]
+        assert cmds == tr["command"].tolist()
+        cuts += ctl.cut
+    assert cuts >= 2  # (the commands compared include cuts)
+
+
+def test_pneugym_export_writes_a_controller(runs, tmp_path, capsys):
+    from pneugym.cli import main
+
+    assert main(["export", str(runs["ppo"]), "--out", str(tmp_path / "x")]) == 0
+    out = capsys.readouterr().out
+    assert "onnx : max |difference| from torch" in out and "of the tolerance" in out
+    assert {p.name for p in (tmp_path / "x").iterdir()} == {"model.onnx", "weights.npz",
+                                                            "controller.json"}
+    with pytest.raises(ValueError, match="has no neural network"):
+        main(["export", "gaslaw", "--out", str(tmp_path / "y")])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -144,29 +144,54 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
 class ESACPredictor:
     """The trained network with its units: :meth:`__call__` maps observations (in the model's
     layout) to the predicted outcome of cutting now, or ``delay_s`` later, in SI units.
-    ``lookahead_s``: the delays the model was trained on (empty without ``delay_input``)."""
+    ``lookahead_s``: the delays the model was trained on (empty without ``delay_input``).
+
+    ``backend`` evaluates the network: a callable from float32 inputs (B, n_in) to its float32
+    raw outputs (B, 7: class logits, standardised regression values), the input normalisation
+    included; default (None) the torch ``net`` (:meth:`torch_forward`). It is the only place
+    the network runs (:mod:`pneugym.deploy.export` swaps it for onnxruntime or numpy). ``net``
+    then needs only its normalisation buffers ``in_mean`` (n_in,), ``out_mean`` and
+    ``out_std`` (5,): the regression heads are de-standardised in :meth:`raw`."""
 
     def __init__(self, net, layout: Mapping[str, Any], delay_input: bool = False,
-                 lookahead_s: Sequence[float] = ()):
+                 lookahead_s: Sequence[float] = (),
+                 backend: Callable[[np.ndarray], np.ndarray] | None = None):
         self.net = net
         self.layout = dict(layout)
         self.delay_input = bool(delay_input)
         self.lookahead_s = np.asarray([d for d in lookahead_s if d > 0], dtype=float)
-        if self.delay_input != (net.in_mean.shape[0] == int(layout["size"]) + 1):
-            raise ValueError(f"the network takes {net.in_mean.shape[0]} inputs: not the "
+        self.n_in = int(net.in_mean.shape[0])
+        if self.delay_input != (self.n_in == int(layout["size"]) + 1):
+            raise ValueError(f"the network takes {self.n_in} inputs: not the "
                              f"observation size {layout['size']}"
                              f"{' + 1 (delay)' if self.delay_input else ''}")
         feats = {f["name"]: f for f in layout["features"]}
         self.stroke_m = float(feats["position"]["scale"])
+        self._backend = backend
+
+    @property
+    def backend(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The network evaluation: float32 (B, n_in) -> float32 raw outputs (B, 7)."""
+        return self._backend if self._backend is not None else self.torch_forward
+
+    @backend.setter
+    def backend(self, fn: Callable[[np.ndarray], np.ndarray] | None) -> None:
+        self._backend = fn
+
+    def torch_forward(self, x: np.ndarray) -> np.ndarray:
+        """The torch network's raw outputs (B, 7) [float32] for float32 inputs ``x`` (B, n_in)."""
+        torch = _torch()
+        with torch.no_grad():
+            return self.net(torch.as_tensor(x)).numpy()
 
     def raw(self, x: np.ndarray) -> np.ndarray:
         """The network's outputs (class logits, regression values in units) for inputs ``x``."""
-        torch = _torch()
-        with torch.no_grad():
-            out = self.net(torch.as_tensor(np.asarray(x, dtype=np.float32)))
-            nc = len(CLASS_HEADS)
-            out[:, nc:] = out[:, nc:] * self.net.out_std + self.net.out_mean
-        return out.numpy().astype(np.float64)
+        out = np.array(self.backend(np.ascontiguousarray(x, dtype=np.float32)), dtype=np.float32)
+        nc = len(CLASS_HEADS)
+        # float32, as the network's buffers: the same numbers whichever backend ran it
+        out[:, nc:] = (out[:, nc:] * np.asarray(self.net.out_std, dtype=np.float32)
+                       + np.asarray(self.net.out_mean, dtype=np.float32))
+        return out.astype(np.float64)
 
     def __call__(self, obs: np.ndarray, delay_s: float | Sequence[float] | None = None
                  ) -> dict[str, np.ndarray]:

@@ -16,6 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from ..envs import episode as EP
+from ..envs.conditions import Conditions
+from ..envs.cutoff import OBS_BOUND, RIG_OBSERVATION, datasheet_features, stroke_events
 from ..params import RigParams
 
 #: Policies that cannot run on a real rig, and why.
@@ -53,9 +56,6 @@ class Controller:
 
     def __init__(self, policy: Any, env: Any, source: str = "the policy",
                  period_tolerance: float = PERIOD_TOLERANCE):
-        from ..envs import episode as EP
-        from ..envs.cutoff import RIG_OBSERVATION
-
         u = env.unwrapped
         if u.observe_params:
             raise ValueError(f"{source}: the environment observes privileged parameters "
@@ -125,9 +125,6 @@ class Controller:
     def reset(self, supply_setpoint_pa: float, load_mass_kg: float | None = None) -> None:
         """Start a stroke at the extend command: the supply set-point [Pa absolute] and the
         payload [kg] (default the rig's) of this stroke."""
-        from ..envs.conditions import Conditions
-        from ..envs.cutoff import datasheet_features
-
         ps = _number("supply_setpoint_pa", supply_setpoint_pa)
         if not self._pa + 1e4 <= ps <= self._pa + 2e6:
             hint = (" (bar given as Pa?)" if ps < 100 else
@@ -185,8 +182,6 @@ class Controller:
         return self._obs[0].copy()
 
     def _observation(self) -> np.ndarray:
-        from ..envs.cutoff import OBS_BOUND, stroke_events
-
         n = self._hist.size
         self._obs[0, :n] = np.clip(self._hist.reshape(-1), -OBS_BOUND, OBS_BOUND)
         if self._n_rig:
@@ -270,8 +265,12 @@ def _policy(name: str, path: Path, env: Any, backend: str, kwargs: dict[str, Any
         if kwargs:
             raise ValueError(f"{path} is an exported controller: its decision rule is fixed at "
                              f"export; got overrides {sorted(kwargs)}")
-        return load_exported(path, env.unwrapped.observation_layout(),
-                             backend="numpy" if backend == "torch" else backend)
+        from agents.registry import check_rig
+
+        policy = load_exported(path, env.unwrapped.observation_layout(),
+                               backend="numpy" if backend == "torch" else backend)
+        check_rig(policy, None, env)
+        return policy
     if not path.exists():
         from agents.evaluation.specs import LEARNED
 
