@@ -9,6 +9,10 @@ import os
 # the caller (a policy, SB3) needs: measured 10x slower vector steps on a loaded 2-core machine.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from ._jitcache import configure as _configure_jit_cache  # noqa: E402
+
+_configure_jit_cache()  # compiled kernels keyed on all jitted sources together
+
 from .params import (  # noqa: E402
     CylinderParams, EffectParams, FrictionParams, GasParams, LineParams, RigParams, SolverParams,
     ValveParams, thesis_rig,

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .params import RigParams, did_you_mean
+from .params import CYLINDER_DESIGNS, STROKE_DIRECTIONS, RigParams, did_you_mean
 from .plant import Plant
 
 FORMAT = "pneugym-measurement/1"
@@ -131,15 +131,23 @@ PLAUSIBLE: dict[str, Plausible] = {
     "rig.friction.static_n": Plausible(0.0, 1e5, "breakaway friction", "N", 359.0),
     "rig.friction.coulomb_n": Plausible(0.0, 1e5, "Coulomb friction", "N", 126.0),
     "rig.friction.viscous_n_s_per_m": Plausible(0.0, 1e6, "viscous friction", "N s/m", 1557.0),
+    "rig.dead_volume_rod_m3": Plausible(1e-9, 0.02, "rod-side dead volume", "m³", 2.4e-4, _VOLUME),
+    "rig.mounting_angle_deg": Plausible(-90.0, 90.0, "mounting angle", "deg", 0.0,
+                                        hint="0 horizontal, 90 rod up, -90 rod down"),
+    "external_force_n": Plausible(-1e6, 1e6, "external force opposing the stroke", "N", 0.0),
 }
+#: Keys whose values are text, checked against their choices.
+TEXT_KEYS = {"stroke_direction": STROKE_DIRECTIONS, "rig.cylinder_design": CYLINDER_DESIGNS}
 #: Top-level JSON keys the format defines (others are kept and ignored unless they look like a
 #: misspelling of one of these).
 TOP_KEYS = ("format", "supply_pressure_gauge_pa", "load_mass_kg", "ambient_pressure_pa",
-            "ambient_temperature_k", "sample_rate_hz", "rig", "description")
+            "ambient_temperature_k", "sample_rate_hz", "rig", "description", "stroke_direction",
+            "external_force_n")
 _RIG_KEYS = ("bore_m", "rod_m", "stroke_m", "dead_volume_m3", "line_length_m", "line_diameter_m",
              "valve_area_m2", "port_area_m2", "exhaust_area_m2", "cushion_length_m",
              "cushion_factor_drive", "cushion_factor_exhaust", "discharge_coefficient",
-             "valve_delay_s", "moving_mass_extra_kg")
+             "valve_delay_s", "moving_mass_extra_kg", "cylinder_design", "dead_volume_rod_m3",
+             "mounting_angle_deg")
 _FRICTION_KEYS = ("static_n", "coulomb_n", "viscous_n_s_per_m")
 #: an unknown top-level key this similar (difflib ratio, lower case) to a known one is refused
 NEAR_MISS_RATIO = 0.75
@@ -331,6 +339,12 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise MeasurementFormatError(f"{path}: key 'description' must be a string")
     rig = meta.get("rig")
     _check_section(path, "rig", rig, _RIG_KEYS + ("friction",))
+    for key, choices in TEXT_KEYS.items():
+        where = rig if key.startswith("rig.") else meta
+        name = key.removeprefix("rig.")
+        if isinstance(where, Mapping) and name in where and where[name] not in choices:
+            raise MeasurementFormatError(f"{path}: key {key!r} = {where[name]!r:.60}; expected "
+                                         f"one of {list(choices)}")
     if rig is not None:
         _check_section(path, "rig.friction", rig.get("friction"), _FRICTION_KEYS)
     return meta
@@ -426,7 +440,7 @@ def _check_section(path: Path, name: str, section: Any, keys: Sequence[str]) -> 
             raise MeasurementFormatError(
                 f"{path}: key '{name}.{key}' is not a {name} key{did_you_mean(key, keys)}; "
                 f"known: {', '.join(keys)}")
-        if key != "friction":
+        if key != "friction" and f"{name}.{key}" not in TEXT_KEYS:
             _check_plausible(path, f"{name}.{key}", value)
 
 
@@ -764,6 +778,9 @@ def simulate_run(params: RigParams, schedule: Sequence[tuple[float, int]] = ((0.
         "format": FORMAT,
         "supply_pressure_gauge_pa": params.supply_pressure_gauge_pa,
         "load_mass_kg": params.load_mass_kg,
+        **{k: getattr(params, k) for k, default in (("stroke_direction", "extend"),
+                                                    ("external_force_n", 0.0))
+           if getattr(params, k) != default},
         "ambient_pressure_pa": params.gas.ambient_pressure_pa,
         "ambient_temperature_k": params.gas.ambient_temperature_k,
         "sample_rate_hz": sample_rate_hz,

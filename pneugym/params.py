@@ -22,6 +22,12 @@ from typing import Any, Mapping
 THESIS_VALVE_DELAY = ((150_000.0, 0.215), (250_000.0, 0.185))
 
 
+#: Cylinder designs (:attr:`CylinderParams.design`) and stroke directions
+#: (:attr:`RigParams.stroke_direction`).
+CYLINDER_DESIGNS = ("double-rod", "single-rod")
+STROKE_DIRECTIONS = ("extend", "retract")
+STANDARD_GRAVITY = 9.80665  # [m/s²]
+
 _GROUP_NAMES = ("gas", "cylinder", "line", "valve", "friction", "effects", "solver")
 try:  # numpy's bool is not a Python bool but is no number either
     from numpy import bool_ as np_bool
@@ -116,7 +122,14 @@ class GasParams:
 
 @dataclass(frozen=True)
 class CylinderParams:
-    """Double-rod double-acting cylinder SMC C92SB-125-180W with end cushions (thesis 3.1, 3.4)."""
+    """Double-acting cylinder; the default is the thesis's double-rod SMC C92SB-125-180W with end
+    cushions (thesis 3.1, 3.4).
+
+    ``design``: ``"double-rod"`` (both piston faces are annuli) or ``"single-rod"`` (ISO 15552 /
+    ISO 6432: the cap side has the full bore area, the rod side the annulus).
+    ``dead_volume_m3``: the cap side's dead volume (each side's on a double-rod cylinder),
+    ``dead_volume_rod_m3`` the rod side's (None: the same). ``mounting_angle_deg``: 0
+    horizontal, +90 rod pointing up (extending lifts the load), -90 rod pointing down."""
 
     bore_m: float = 0.125
     rod_m: float = 0.032
@@ -128,11 +141,24 @@ class CylinderParams:
     cushion_factor_exhaust: float = 0.0101  # calibrated: exhaust area factor in the last zone
     cushion_ramp_m: float = 0.002  # smooth transition of the cushion factor (numerics)
     moving_mass_extra_kg: float = 1.0  # "other masses" Mo (thesis 6.1)
+    design: str = "double-rod"
+    dead_volume_rod_m3: float | None = None
+    mounting_angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
         _finite(self)
         _positive(self, "bore_m", "stroke_m", "dead_volume_m3", "port_area_m2",
                   "cushion_factor_drive", "cushion_factor_exhaust", "cushion_ramp_m")
+        _check(self, "design", self.design in CYLINDER_DESIGNS,
+               f"one of {list(CYLINDER_DESIGNS)}{did_you_mean(self.design, CYLINDER_DESIGNS)}")
+        if self.dead_volume_rod_m3 is not None:
+            _positive(self, "dead_volume_rod_m3")
+            _plausible(self, "dead_volume_rod_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
+        _check(self, "mounting_angle_deg", -90.0 <= self.mounting_angle_deg <= 90.0,
+               "in [-90, 90] degrees (0 horizontal, +90 rod pointing up; radians given as "
+               "degrees?)" if abs(self.mounting_angle_deg) > 90 else "in [-90, 90] degrees")
+        if self.design == "single-rod":
+            _check(self, "rod_m", self.rod_m > 0.0, "> 0 for a single-rod cylinder")
         _nonneg(self, "rod_m", "cushion_length_m", "moving_mass_extra_kg")
         _check(self, "rod_m", self.rod_m < self.bore_m, f"< bore_m ({self.bore_m})")
         _check(self, "cushion_length_m", self.cushion_length_m < 0.5 * self.stroke_m,
@@ -147,8 +173,21 @@ class CylinderParams:
 
     @property
     def piston_area_m2(self) -> float:
-        """Annulus area [m²], the same on both sides of a double-rod cylinder."""
+        """Annulus area [m²]: the rod side's, and both sides' of a double-rod cylinder."""
         return math.pi / 4.0 * (self.bore_m**2 - self.rod_m**2)
+
+    @property
+    def cap_area_m2(self) -> float:
+        """Area [m²] of the cap side's piston face: the full bore of a single-rod cylinder, the
+        annulus of a double-rod one."""
+        if self.design == "double-rod":
+            return self.piston_area_m2
+        return math.pi / 4.0 * self.bore_m**2
+
+    @property
+    def rod_dead_volume_m3(self) -> float:
+        """Dead volume [m³] of the rod side's chamber at its end of stroke."""
+        return self.dead_volume_m3 if self.dead_volume_rod_m3 is None else self.dead_volume_rod_m3
 
 
 @dataclass(frozen=True)
@@ -345,7 +384,14 @@ MEASUREMENT_RIG_KEYS: dict[str, tuple[str, str]] = {
     "valve_area_m2": ("valve", "area_m2"), "exhaust_area_m2": ("valve", "exhaust_area_m2"),
     "discharge_coefficient": ("valve", "discharge_coefficient"),
     "valve_delay_s": ("valve", "delay_s"),
+    "cylinder_design": ("cylinder", "design"),
+    "dead_volume_rod_m3": ("cylinder", "dead_volume_rod_m3"),
+    "mounting_angle_deg": ("cylinder", "mounting_angle_deg"),
 }
+#: Top-level keys of a measured run's JSON that are :class:`RigParams` fields (the stroke
+#: measured and what loads it); the last two are optional (extension, no external force).
+MEASUREMENT_TOP_FIELDS = ("supply_pressure_gauge_pa", "load_mass_kg", "stroke_direction",
+                          "external_force_n")
 MEASUREMENT_FRICTION_KEYS: dict[str, tuple[str, str]] = {
     k: ("friction", k) for k in ("static_n", "coulomb_n", "viscous_n_s_per_m")}
 
@@ -365,6 +411,8 @@ class RigParams:
 
     supply_pressure_gauge_pa: float = 250_000.0
     load_mass_kg: float = 10.0
+    stroke_direction: str = "extend"
+    external_force_n: float = 0.0
     gas: GasParams = field(default_factory=GasParams)
     cylinder: CylinderParams = field(default_factory=CylinderParams)
     line: LineParams = field(default_factory=LineParams)
@@ -383,6 +431,11 @@ class RigParams:
                f"{self.supply_pressure_gauge_pa:g} bar = {self.supply_pressure_gauge_pa * 1e5:g} Pa)")
         _nonneg(self, "load_mass_kg")
         _plausible(self, "load_mass_kg", 1e4, "grams given as kg?")
+        _check(self, "stroke_direction", self.stroke_direction in STROKE_DIRECTIONS,
+               f"one of {list(STROKE_DIRECTIONS)}"
+               f"{did_you_mean(self.stroke_direction, STROKE_DIRECTIONS)}")
+        _check(self, "external_force_n", abs(self.external_force_n) <= 1e6,
+               "at most 1e6 N in size (a process force opposing the stroke; kN given as N?)")
         if self.moving_mass_kg <= 0.0:
             raise ValueError(f"RigParams: the moving mass load_mass_kg + "
                              f"CylinderParams.moving_mass_extra_kg = {self.moving_mass_kg:g} kg "
@@ -398,14 +451,52 @@ class RigParams:
     def moving_mass_kg(self) -> float:
         return self.load_mass_kg + self.cylinder.moving_mass_extra_kg
 
+    # -- the stroke: which chamber drives, the loads along the motion -----------------------
+    @property
+    def drive_area_m2(self) -> float:
+        """Piston face area [m²] of the driving chamber: the cap side's when extending, the rod
+        side's (annulus) when retracting."""
+        c = self.cylinder
+        return c.cap_area_m2 if self.stroke_direction == "extend" else c.piston_area_m2
+
+    @property
+    def exhaust_area_m2(self) -> float:
+        """Piston face area [m²] of the exhausting chamber."""
+        c = self.cylinder
+        return c.piston_area_m2 if self.stroke_direction == "extend" else c.cap_area_m2
+
+    @property
+    def drive_dead_volume_m3(self) -> float:
+        """Dead volume [m³] of the driving chamber (the cylinder's; without the effects')."""
+        c = self.cylinder
+        return c.dead_volume_m3 if self.stroke_direction == "extend" else c.rod_dead_volume_m3
+
+    @property
+    def exhaust_dead_volume_m3(self) -> float:
+        """Dead volume [m³] of the exhausting chamber."""
+        c = self.cylinder
+        return c.rod_dead_volume_m3 if self.stroke_direction == "extend" else c.dead_volume_m3
+
+    @property
+    def load_force_n(self) -> float:
+        """Constant force [N] on the piston along the stroke's motion (negative: opposing):
+        gravity on the moving mass at the mounting angle, and the external force, which opposes
+        the stroke. Extending a cylinder with its rod up lifts the load."""
+        sign = 1.0 if self.stroke_direction == "extend" else -1.0
+        lift = self.moving_mass_kg * STANDARD_GRAVITY * math.sin(
+            math.radians(self.cylinder.mounting_angle_deg))
+        return -sign * lift - self.external_force_n
+
     def cannot_move(self) -> str | None:
-        """Why the supply can never move the piston (its force at full supply does not beat the
-        static friction), or None."""
-        force = self.supply_pressure_gauge_pa * self.cylinder.piston_area_m2
+        """Why the supply can never move the piston (its force at full supply, with the loads
+        along the motion, does not beat the static friction), or None."""
+        force = self.supply_pressure_gauge_pa * self.drive_area_m2 + self.load_force_n
         if force > self.friction.static_n:
             return None
+        load = (f" (with {self.load_force_n:+.4g} N of gravity and external force along the "
+                f"motion)" if self.load_force_n else "")
         return (f"the supply ({self.supply_pressure_gauge_pa:g} Pa gauge) pushes the piston with "
-                f"at most {force:.4g} N, not more than the static friction "
+                f"at most {force:.4g} N{load}, not more than the static friction "
                 f"FrictionParams.static_n = {self.friction.static_n:g} N: the piston can never "
                 f"move (supply in bar given as Pa, a bore in mm given as m, or friction too high?)")
 
@@ -485,7 +576,7 @@ class RigParams:
                                      f"known: {sorted(keys)}")
                 g, name = keys[key]
                 groups.setdefault(g, {})[name] = value
-        top = {k: meta[k] for k in ("supply_pressure_gauge_pa", "load_mass_kg") if k in meta}
+        top = {k: meta[k] for k in MEASUREMENT_TOP_FIELDS if k in meta}
         gas = {k: meta[k] for k in ("ambient_pressure_pa", "ambient_temperature_k") if k in meta}
         if gas:
             groups["gas"] = gas
@@ -505,7 +596,14 @@ class RigParams:
             "moving_mass_extra_kg": c.moving_mass_extra_kg,
             "friction": {"static_n": f.static_n, "coulomb_n": f.coulomb_n,
                          "viscous_n_s_per_m": f.viscous_n_s_per_m},
+            **{key: getattr(c, name) for key, (_, name) in MEASUREMENT_RIG_KEYS.items()
+               if name in _CYLINDER_FORM and getattr(c, name) != _CYLINDER_FORM[name]},
         }
+
+
+#: cylinder fields a measured run's rig section states only when they differ from these (files
+#: of double-rod horizontal cylinders keep the keys they always had)
+_CYLINDER_FORM = {"design": "double-rod", "dead_volume_rod_m3": None, "mounting_angle_deg": 0.0}
 
 
 def _group_value(cur: Any, name: str, v: Any) -> Any:

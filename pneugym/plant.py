@@ -128,10 +128,12 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_LIN] = v.linear_ratio
     P[L.P_DELAY] = params.valve_delay_s
     P[L.P_RAMP] = v.ramp_s
-    P[L.P_AP] = c.piston_area_m2
+    P[L.P_AP] = params.drive_area_m2
+    P[L.P_AE] = params.exhaust_area_m2
+    P[L.P_FLOAD] = params.load_force_n
     P[L.P_STROKE] = c.stroke_m
-    P[L.P_V0D] = c.dead_volume_m3 + e.dead_volume_m3
-    P[L.P_V0E] = c.dead_volume_m3
+    P[L.P_V0D] = params.drive_dead_volume_m3 + e.dead_volume_m3
+    P[L.P_V0E] = params.exhaust_dead_volume_m3
     P[L.P_CUSH_LEN] = c.cushion_length_m
     P[L.P_CUSH_FD] = c.cushion_factor_drive
     P[L.P_CUSH_FE] = c.cushion_factor_exhaust
@@ -208,16 +210,17 @@ def stability_limits(params: RigParams) -> dict[str, float]:
         lam = G * R * T * (1.0 / va + 1.0 / vb)
         out[f"orifice {name}"] = RK3_REAL_LIMIT / lam
 
-    v0d = c.dead_volume_m3 + e.dead_volume_m3
+    v0d = params.drive_dead_volume_m3 + e.dead_volume_m3
+    v0e = params.exhaust_dead_volume_m3
     if ln.n_cells == 1:
         # one cell takes both flows: the valve's is explicit then, and next to the implicit port
         # flow on the same cell the IMEX step is stable to 0.72 x the RK3 orifice bound
         # (linearised scan along extensions, FD and lumped, 1.5 and 2.5 bar): 0.7 of it
         orifice("valve -> line cell 0", cd * v.area_m2, vol[0], math.inf)
         out["orifice valve -> line cell 0"] *= 0.7
-    orifice("exhaust", cd * v.exhaust_area_m2, c.dead_volume_m3, math.inf)
+    orifice("exhaust", cd * v.exhaust_area_m2, v0e, math.inf)
     orifice("leak drive", e.leak_drive_area_m2, v0d, math.inf)
-    orifice("leak piston", e.leak_piston_area_m2, v0d, c.dead_volume_m3)
+    orifice("leak piston", e.leak_piston_area_m2, v0d, v0e)
     if ln.model == "lumped" and ln.n_cells > 1:
         # the whole orifice chain (valve, joints, port) is implicit (pneugym.physics.chain.
         # implicit_chain) and has no stability limit, but its first IMEX stage is explicit:
@@ -259,9 +262,12 @@ def stability_limits(params: RigParams) -> dict[str, float]:
         lam_f = 32.0 * g.viscosity_pa_s * R * T / (0.5 * pa * ln.diameter_m**2)
         out["line friction"] = RK3_REAL_LIMIT / lam_f
     M = params.moving_mass_kg
-    A = c.piston_area_m2
+    A, Ae = params.drive_area_m2, params.exhaust_area_m2
     if M > 0:
-        k = A * A * ps * (1.0 / v0d + 1.0 / c.dead_volume_m3)
+        if A == Ae:  # (this form for a double-rod cylinder: the substeps stay as they were)
+            k = A * A * ps * (1.0 / v0d + 1.0 / v0e)
+        else:
+            k = ps * (A * A / v0d + Ae * Ae / v0e)
         out["piston air spring"] = RK3_IMAG_LIMIT / math.sqrt(k / M)
         if params.friction.viscous_n_s_per_m > 0:
             out["piston viscous"] = RK3_REAL_LIMIT * M / params.friction.viscous_n_s_per_m
@@ -366,9 +372,8 @@ class Plant:
         if not (_real(position_m) and 0.0 <= position_m <= prm.cylinder.stroke_m):
             raise ValueError(f"position_m = {position_m!r} is invalid: must be a number in "
                              f"[0, stroke = {prm.cylinder.stroke_m:g}] m")
-        A = prm.cylinder.piston_area_m2
-        vd = self.P[L.P_V0D] + A * position_m
-        ve = self.P[L.P_V0E] + A * (prm.cylinder.stroke_m - position_m)
+        vd = self.P[L.P_V0D] + self.P[L.P_AP] * position_m
+        ve = self.P[L.P_V0E] + self.P[L.P_AE] * (prm.cylinder.stroke_m - position_m)
         for name, val in (("p_drive_pa", pd), ("p_exhaust_pa", pe)):
             if not (_real(val) and val > 0):
                 raise ValueError(f"{name} = {val!r} must be a positive absolute pressure [Pa]")

@@ -41,11 +41,13 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from .data import FORMAT as MEASUREMENT_FORMAT
-from .data import PLAUSIBLE
+from .data import PLAUSIBLE, TEXT_KEYS
 from .data import TOP_KEYS as MEASUREMENT_TOP_KEYS
 from .data import _near_miss
 from .outputs import atomic_write_text, check_output_file
-from .params import MEASUREMENT_FRICTION_KEYS, MEASUREMENT_RIG_KEYS, RigParams, did_you_mean
+from .params import (
+    MEASUREMENT_FRICTION_KEYS, MEASUREMENT_RIG_KEYS, MEASUREMENT_TOP_FIELDS, RigParams, did_you_mean,
+)
 
 #: ``format`` of the files :func:`save` writes.
 FORMAT = "pneugym-rig/1"
@@ -60,8 +62,8 @@ GROUPS: dict[str, type] = {f.name: type(getattr(_THESIS, f.name)) for f in field
                            if is_dataclass(getattr(_THESIS, f.name))}
 _TOP = tuple(f.name for f in fields(RigParams))
 #: top-level keys of the measurement form
-_MEASUREMENT_TOP = ("supply_pressure_gauge_pa", "load_mass_kg", "ambient_pressure_pa",
-                    "ambient_temperature_k", "rig")
+_MEASUREMENT_TOP = (*MEASUREMENT_TOP_FIELDS, "ambient_pressure_pa", "ambient_temperature_k",
+                    "rig")
 #: top-level keys only the measurement form has
 _MEASUREMENT_ONLY = ("rig", "ambient_pressure_pa", "ambient_temperature_k")
 #: (group, field) -> key of the measurement form
@@ -381,6 +383,11 @@ def _from_measurement(doc: Mapping[str, Any], base: RigParams, where: str) -> Ri
     leaves += [(f"rig.{k}", v) for k, v in rig.items() if k != "friction"]
     leaves += [(f"rig.friction.{k}", v) for k, v in friction.items()]
     for key, value in leaves:
+        if key in TEXT_KEYS:
+            if value not in TEXT_KEYS[key]:
+                raise RigFileError(f"{where}: key {key!r} = {value!r:.60}; expected one of "
+                                   f"{list(TEXT_KEYS[key])}")
+            continue
         _number(where, key, value)
         spec = PLAUSIBLE.get(key)
         if spec is not None and _real(value) and not spec.ok(float(value)):
@@ -592,8 +599,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"# {a.file}: a valid rig")
     print(format_rig(rig, ref, ref_name))
     n = len(rig_difference(ref, rig))
-    print(f"# derived: piston area {rig.cylinder.piston_area_m2:.4g} m², moving mass "
-          f"{rig.moving_mass_kg:g} kg, valve delay {rig.valve_delay_s:g} s at this supply")
+    faces = (f"piston area {rig.drive_area_m2:.4g} m²" if rig.drive_area_m2 == rig.exhaust_area_m2
+             else f"piston faces {rig.drive_area_m2:.4g} m² driving, {rig.exhaust_area_m2:.4g} m² "
+                  f"exhausting")
+    along = f", {rig.load_force_n:+.4g} N of constant load along the motion" \
+        if rig.load_force_n else ""
+    print(f"# derived: {faces}, moving mass {rig.moving_mass_kg:g} kg, valve delay "
+          f"{rig.valve_delay_s:g} s at this supply{along}")
     if n:
         print(f"# differs from {ref_name} in {n} of {len(rig_fields(rig))} fields: "
               f"{describe_difference(ref, rig)}")

@@ -119,7 +119,7 @@ def datasheet_features(rig: RigParams) -> tuple[float, float, float, float]:
     """The first :data:`N_DATASHEET` features of :data:`RIG_OBSERVATION` for ``rig``, scaled:
     line length and diameter, stated dead volume, payload (what its rig file says)."""
     return (rig.line.length_m / 5.0, rig.line.diameter_m / 0.008,
-            (rig.cylinder.dead_volume_m3 + rig.effects.dead_volume_m3) / 5e-4,
+            (rig.drive_dead_volume_m3 + rig.effects.dead_volume_m3) / 5e-4,
             rig.load_mass_kg / 40.0)
 
 

@@ -1,7 +1,8 @@
 """Double-acting cylinder: chamber volumes and pressures, end cushions, friction, chamber energy
 equation.
 
-Thesis 3.4, 5.6, 6.1-6.2: ``(M + Mo) dv/dt = (p_drive - p_exhaust) A_p - F_f``; the piston stays
+Thesis 3.4, 5.6, 6.1-6.2: ``(M + Mo) dv/dt = F - F_f`` with the drive force :func:`piston_force`
+(``(p_drive - p_exhaust) A_p`` for the thesis's double-rod, horizontal cylinder); the piston stays
 stuck while ``|F| <= Fs`` (Karnopp), then ``F_f = sign(v) (C + Kv |v|)`` plus the optional
 Stribeck term. The stick/slip and end-stop logic is in :mod:`pneugym.physics.events`.
 """
@@ -9,7 +10,9 @@ import math
 
 from numba import njit
 
-from .layout import P_AP, P_R, P_STROKE, P_V0D, P_V0E, Y_MD, Y_ME, Y_TD, Y_TE, Y_X
+from .layout import (
+    P_AE, P_AP, P_FLOAD, P_PA, P_R, P_STROKE, P_V0D, P_V0E, Y_MD, Y_ME, Y_TD, Y_TE, Y_X,
+)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -17,14 +20,27 @@ def chamber_pressures(y, P, b):
     """Driving and exhaust chamber pressures [Pa] and volumes [m³] for state ``y`` (``b = 2n - 1``
     the offset of the chamber states): the ideal gas law ``p = m R T / V`` with
 
-        V_d = V0_d + A_p x,    V_e = V0_e + A_p (stroke - x),    x clipped to [0, stroke]
+        V_d = V0_d + A_d x,    V_e = V0_e + A_e (stroke - x),    x clipped to [0, stroke]
 
-    Returns ``(p_d, p_e, V_d, V_e)``."""
+    (``A_d``, ``A_e``: the driving and exhaust piston faces). Returns ``(p_d, p_e, V_d, V_e)``."""
     x = min(max(y[b + Y_X], 0.0), P[P_STROKE])
     vd = P[P_V0D] + P[P_AP] * x
-    ve = P[P_V0E] + P[P_AP] * (P[P_STROKE] - x)
+    ve = P[P_V0E] + P[P_AE] * (P[P_STROKE] - x)
     R = P[P_R]
     return y[b + Y_MD] * R * y[b + Y_TD] / vd, y[b + Y_ME] * R * y[b + Y_TE] / ve, vd, ve
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def piston_force(pd, pe, P):
+    """Net force [N] on the piston along the stroke's motion, friction aside::
+
+        F = p_d A_d - p_e A_e + p_a (A_e - A_d) + F_load
+          = (p_d - p_e) A_d + (p_a - p_e) (A_e - A_d) + F_load
+
+    ambient pressure ``p_a`` on the rod's end face (``A_e - A_d``: the rod's area, signed), and
+    ``F_load`` the constant gravity and external force along the motion. For a double-rod,
+    horizontal cylinder it is ``(p_d - p_e) A_p`` exactly (the other terms are zeros)."""
+    return (pd - pe) * P[P_AP] + (P[P_PA] - pe) * (P[P_AE] - P[P_AP]) + P[P_FLOAD]
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -9,7 +9,7 @@ import math
 from numba import njit
 
 from .cylinder import chamber_pressures
-from .layout import D_CMD, NP, P_AP, P_NCELLS, P_PA, P_PS, P_R, P_STROKE, P_T, P_V0D, Y_MD, Y_ME, Y_X
+from .layout import D_CMD, NP, P_AP, P_FLOAD, P_NCELLS, P_PA, P_PS, P_R, P_STROKE, P_T, P_V0D, Y_MD, Y_ME, Y_X
 from .valve import valve_closed
 
 
@@ -75,10 +75,11 @@ def energy_wasted(y, P, d):
 @njit(cache=True, error_model="numpy")
 def max_drive_force(y, P):
     """Largest net force [N] the driving-side air can still push with if no more air comes in:
-    line and driving chamber equalised, exhaust vented to ambient. A stuck piston whose
-    ``max_drive_force`` is at most the breakaway friction can never move again::
+    line and driving chamber equalised, exhaust vented to ambient, the constant loads along the
+    motion (gravity, external force) included. A stuck piston whose ``max_drive_force`` is at
+    most the breakaway friction can never move again::
 
-        F = ((m_d + sum_i m_i) R T / (V0_d + A_p x + sum_i V_i) - p_a) A_p
+        F = ((m_d + sum_i m_i) R T / (V0_d + A_d x + sum_i V_i) - p_a) A_d + F_load
     """
     n = int(P[P_NCELLS])
     b = 2 * n - 1
@@ -87,7 +88,7 @@ def max_drive_force(y, P):
     for i in range(n):
         m += y[i]
         vol += P[NP + i]
-    return (m * P[P_R] * P[P_T] / vol - P[P_PA]) * P[P_AP]
+    return (m * P[P_R] * P[P_T] / vol - P[P_PA]) * P[P_AP] + P[P_FLOAD]
 
 
 @njit(cache=True, error_model="numpy")

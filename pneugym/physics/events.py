@@ -17,10 +17,10 @@ import math
 
 from numba import njit
 
-from .cylinder import chamber_pressures
+from .cylinder import chamber_pressures, piston_force
 from .layout import (
-    D_MODE, D_MOVED, D_STICKS, D_T_ARRIVE, MODE_END, MODE_MOVING, MODE_START, MODE_STUCK, P_AP,
-    P_FS, P_LAG, P_STROKE, Y_SD, Y_SE, Y_V, Y_X,
+    D_MODE, D_MOVED, D_STICKS, D_T_ARRIVE, MODE_END, MODE_MOVING, MODE_START, MODE_STUCK, P_FS,
+    P_LAG, P_STROKE, Y_SD, Y_SE, Y_V, Y_X,
 )
 
 #: Karnopp velocity dead band [m/s]: a decelerating piston slower than this sticks if |F| <= Fs.
@@ -43,7 +43,7 @@ def piston_events(y, P, d, h, t, b, mode, x_old, v_old):
     stroke = P[P_STROKE]
     fs = P[P_FS]
     pd, pe, vd, ve = chamber_pressures(y, P, b)
-    f = (pd - pe) * P[P_AP]
+    f = piston_force(pd, pe, P)
     x, v = y[b + Y_X], y[b + Y_V]
     if mode == MODE_MOVING:
         if x >= stroke:

@@ -32,7 +32,7 @@ P_ISO_B = 11       # ISO 6358 critical pressure ratio
 P_LIN = 12         # relative pressure drop below which orifice flow is linear
 P_DELAY = 13       # valve switching delay [s]
 P_RAMP = 14        # valve opening/closing time [s]
-P_AP = 15          # piston annulus area [m²]
+P_AP = 15          # driving-side piston face area [m²] (the annulus of a double-rod cylinder)
 P_STROKE = 16      # stroke [m]
 P_V0D = 17         # driving-chamber volume at x = 0 [m³] (dead volume + extra dead volume)
 P_V0E = 18         # exhaust-chamber volume at x = stroke [m³]
@@ -62,7 +62,9 @@ P_AV = 47          # quadratic artificial-viscosity coefficient of the FD line (
 P_DIP_T0 = 48      # supply-pressure dip: start time [s]
 P_DIP_DUR = 49     # supply-pressure dip: duration [s] (0 = no dip)
 P_DIP_DEPTH = 50   # supply-pressure dip: depth, fraction of the gauge supply pressure
-NP = 51            # start of the cell volumes
+P_AE = 51          # exhaust-side piston face area [m²] (P_AP: the driving side's)
+P_FLOAD = 52       # constant force along the motion [N]: gravity, external force (< 0 opposing)
+NP = 53            # start of the cell volumes
 
 # --- continuous state, offsets from b = 2 n - 1 -------------------------------------------------
 Y_MD = 0    # driving-chamber air mass [kg]

@@ -21,9 +21,11 @@ import math
 from numba import njit
 
 from .chain import implicit_chain
-from .cylinder import chamber_dT, chamber_pressures, cushion_factor, enthalpy_flow, friction_force
+from .cylinder import (
+    chamber_dT, chamber_pressures, cushion_factor, enthalpy_flow, friction_force, piston_force,
+)
 from .layout import (
-    MODE_MOVING, NP, P_AP, P_AV, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT,
+    MODE_MOVING, NP, P_AE, P_AP, P_AV, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT,
     P_CDA_VALVE, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DX, P_FC, P_GAMMA, P_KV,
     P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MASS, P_MU, P_NCELLS, P_OC, P_PA, P_R, P_SQRT_T,
     P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH, Y_MD, Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD,
@@ -157,14 +159,14 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
               + enthalpy_flow(-q_lp, Te, Td, cp, cv, R))
         he = enthalpy_flow(q_lp, Td, Te, cp, cv, R) + enthalpy_flow(-q_ex, T, Te, cp, cv, R)
         dy[b + Y_TD] = chamber_dT(y[b + Y_MD], Td, pd, P[P_AP] * vmove, hd, cv, T, tau_th)
-        dy[b + Y_TE] = chamber_dT(y[b + Y_ME], Te, pe, -P[P_AP] * vmove, he, cv, T, tau_th)
+        dy[b + Y_TE] = chamber_dT(y[b + Y_ME], Te, pe, -P[P_AE] * vmove, he, cv, T, tau_th)
     else:
         dy[b + Y_TD] = 0.0
         dy[b + Y_TE] = 0.0
 
     # piston
     if mode == MODE_MOVING:
-        f = (pd - pe) * P[P_AP]
+        f = piston_force(pd, pe, P)
         ff = friction_force(v, f, P[P_FC], P[P_KV], P[P_STRIB_F], P[P_STRIB_V])
         dy[b + Y_X] = v
         dy[b + Y_V] = (f - ff) / P[P_MASS]
