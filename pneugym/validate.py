@@ -222,6 +222,13 @@ def check_cylinders() -> list[Row]:
     b = Plant(thesis_rig(2.5, stroke_direction="retract")).run(2.0, [(0.0, 1), (0.9, 0)])
     rows.append(Row("cylinders", "double-rod retract - extend, max |x difference|",
                     float(np.max(np.abs(a["x"] - b["x"]))), 0.0, 0.0, "m", False, "symmetry"))
+    from .cycle import run_cycle
+
+    c = run_cycle(single_rod_rig(cylinder={"mounting_angle_deg": 90.0}, valve={"area_m2": 1.5e-5}),
+                  cut_extend_s=0.08, dwell_s=0.2)
+    rows.append(Row("cylinders", "mass balance over a full cycle, single-rod, rod up, cut-off",
+                    c.mass_balance_error, 0.0, 1e-9, "relative", False,
+                    "both strokes, and the air carried across the reversal"))
     pl = Plant(single_rod_rig(cylinder={"mounting_angle_deg": -45.0}, external_force_n=30.0,
                               effects={"leak_piston_area_m2": 1e-7}))
     pl.run(2.0, [(0.0, 1), (0.25, 0)], record_dt=0.01)

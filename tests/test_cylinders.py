@@ -51,7 +51,7 @@ def test_the_validation_rows_of_the_cylinders_pass():
     from pneugym.validate import check_cylinders
 
     rows = check_cylinders()
-    assert len(rows) == 6 and all(r.passed for r in rows), [r for r in rows if not r.passed]
+    assert len(rows) == 7 and all(r.passed for r in rows), [r for r in rows if not r.passed]
     assert rows[4].quantity.startswith("double-rod retract") and rows[4].simulated == 0.0
 
 
@@ -229,3 +229,62 @@ def test_the_jit_cache_is_keyed_on_every_jitted_source(tmp_path, monkeypatch):
     assert fresh.exists() and not stale.exists()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
     assert _jitcache.cache_dir() is None  # the user's own choice stands
+
+
+def test_the_discrepancy_workflow_names_a_leak_on_a_vertical_single_rod_cylinder(tmp_path):
+    """Measured runs of a single-rod cylinder, rod up, with a seal leak its rig file does not
+    state: the workflow names the leak and fits its area."""
+    import json
+
+    from pneugym.cli import main
+    from pneugym.data import thesis_protocol, write_run
+    from pneugym.validate import single_rod_rig
+
+    stated = single_rod_rig(cylinder={"mounting_angle_deg": 90.0}, valve={"area_m2": 1.5e-5},
+                            load_mass_kg=10.0)
+    truth = stated.with_(effects={"leak_drive_area_m2": 3e-7})
+    for run in thesis_protocol(truth, stated, t_end=1.0, seed=3):
+        write_run(run, tmp_path / "measured" / run.name)
+    assert main(["discrepancy", str(tmp_path / "measured"), "--out", str(tmp_path / "report"),
+                 "--candidates", "leakage,sensor_lag", "--starts", "1", "--probe", "2",
+                 "--max-nfev", "15", "--jobs", "1", "--no-plots", "--no-progress"]) == 0
+    rep = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert rep["named_effect"] == "leakage" and rep["gap_reduction"] > 0.9
+    fitted = rep["fitted_params"]
+    leak = fitted.get("effects.leak_drive_area_m2", fitted.get("leak_drive_area_m2"))
+    assert leak == pytest.approx(3e-7, rel=0.05)
+
+
+def test_a_cycle_extends_and_retracts():
+    """Extend, dwell, retract, dwell: both strokes arrive, the cycle's air is both strokes',
+    the chambers' air crosses the reversal intact; a cut-off extension saves as a single
+    stroke with the same cut does."""
+    from pneugym.cycle import run_cycle
+    from pneugym.units import free_air_nl
+
+    rig = thesis_rig(2.5)
+    conv = run_cycle(rig, dwell_s=0.3)
+    assert conv.completed and conv.extend.direction == "extend"
+    assert conv.cycle_time_s == pytest.approx(conv.extend.arrival_time_s
+                                              + conv.retract.arrival_time_s + 0.6)
+    assert conv.air_mass_kg == conv.extend.air_mass_kg + conv.retract.air_mass_kg
+    assert conv.free_air_nl == pytest.approx(free_air_nl(conv.air_mass_kg))
+    assert conv.mass_balance_error < 1e-12 and conv.extend.saving_ratio == 0.0
+    cut = run_cycle(rig, cut_extend_s=0.95, dwell_s=0.3)
+    single = Plant(rig)
+    single.run(3.0, [(0.0, 1), (0.95, 0)])
+    assert cut.extend.saving_ratio == pytest.approx(single.saving_ratio, abs=0.01)
+    assert cut.free_air_nl < conv.free_air_nl and cut.completed
+
+
+def test_a_steady_cycle_starts_where_the_last_ended():
+    from pneugym.cycle import run_cycle, steady_cycle
+
+    rig = thesis_rig(2.5)
+    first = run_cycle(rig, dwell_s=0.2)
+    second = run_cycle(rig, dwell_s=0.2, start_pressures_pa=first.end_pressures_pa)
+    assert steady_cycle(rig, cycles=2, dwell_s=0.2) == second
+    with pytest.raises(ValueError, match="cycles = 0 must be an integer >= 1"):
+        steady_cycle(rig, cycles=0)
+    with pytest.raises(ValueError, match="dwell_s = -1.0 must be a finite number >= 0"):
+        run_cycle(rig, dwell_s=-1.0)
