@@ -119,7 +119,7 @@ class GasLawPolicy(Policy):
             v = np.array([f(r) for r in rigs], dtype=float)
             return float(v[0]) if v.size == 1 else v
 
-        self._area = col(lambda r: r.drive_area_m2)
+        self._area = col(lambda r: r.drive_piston_area_m2)
         self._v0 = col(lambda r: r.drive_dead_volume_m3 + r.effects.dead_volume_m3)
         self._stroke = col(lambda r: r.cylinder.stroke_m)
         self._pa = col(lambda r: r.gas.ambient_pressure_pa)

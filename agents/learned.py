@@ -397,6 +397,13 @@ class SB3Policy(LearnedPolicy):
         self._cut_idx = base + names.index("supply_cut")
         self._log_survival: np.ndarray | None = None
 
+    def begin_episodes(self, conditions) -> None:
+        """New episodes: the history restarts, and so does the quantile rule's running survival
+        (an episode whose first sample is not at time 0, on a rig, would otherwise inherit the
+        last one's)."""
+        super().begin_episodes(conditions)
+        self._log_survival = None
+
     def model_obs(self, obs: np.ndarray) -> np.ndarray:
         """``obs`` in the network's layout: stacked when needed, and zeros in the privileged
         columns of an asymmetric model's critic (its actor does not read them)."""

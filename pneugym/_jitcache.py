@@ -24,13 +24,16 @@ PACKAGE = Path(__file__).resolve().parent
 KEEP_DAYS = 7.0
 
 
-def sources_hash() -> str:
-    """SHA-256 (16 hex digits) of every pneugym source file that uses numba, in path order."""
+def sources_hash(package: Path = PACKAGE) -> str:
+    """SHA-256 (16 hex digits) of the sources the kernels are compiled from, in path order: every
+    file of ``pneugym/physics`` (the kernels, and the layout whose indices they read) and every
+    other pneugym file that uses numba."""
     h = hashlib.sha256()
-    for f in sorted(PACKAGE.rglob("*.py")):
+    for f in sorted(package.rglob("*.py")):
         text = f.read_bytes()
-        if b"numba" in text:
-            h.update(f.relative_to(PACKAGE).as_posix().encode() + b"\0" + text + b"\0")
+        rel = f.relative_to(package).as_posix()
+        if rel.startswith("physics/") or b"numba" in text:
+            h.update(rel.encode() + b"\0" + text + b"\0")
     return h.hexdigest()[:16]
 
 

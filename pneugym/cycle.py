@@ -2,9 +2,9 @@
 
 The plant simulates one stroke with one driving side; a cycle is two strokes of it. The extension
 runs on the rig with ``stroke_direction="extend"`` (the cap side drives), the retraction on the
-same rig with ``"retract"`` (the rod side drives). At the reversal the chambers keep their air:
-the cap side's pressure becomes the retraction's exhaust chamber, the rod side's its driving
-chamber; the retraction's supply line starts at ambient (it vented during the extension), and the
+same rig with ``"retract"`` (the rod side drives). At the reversal the chambers keep their air
+and its temperature: the cap side becomes the retraction's exhaust chamber, the rod side its
+driving chamber; the retraction's supply line starts at ambient (it vented during the extension), and the
 extension's line vents (its air is wasted, as eq. 5.9 counts it). Each stroke may be cut off;
 each is accounted as the environment accounts an extension (thesis eq. 5.9 on whichever side
 drives), and the cycle's air in normal litres and compressor energy (:mod:`pneugym.units`).
@@ -47,7 +47,7 @@ class CycleResult:
     """A cycle: both strokes, its duration [s] (strokes and dwells), air [kg], [NL], compressor
     energy [kWh], the chamber pressures [Pa] it ends with (cap side, rod side; the start of the
     next cycle), and its mass balance: the largest relative error of either stroke's balance
-    and of the chambers' air carried across the reversal (round-off)."""
+    and of the chambers' pressures carried across the reversal (round-off)."""
 
     extend: StrokeResult
     retract: StrokeResult
@@ -103,6 +103,12 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
     arrive within ``t_max_s`` [s] ends the cycle there (``cycle_time_s`` None)."""
     for name, v in (("cut_extend_s", cut_extend_s), ("cut_retract_s", cut_retract_s)):
         _check(name, v)
+    e = rig.effects
+    if e.dead_volume_m3 or e.leak_drive_area_m2:
+        raise ValueError("effects.dead_volume_m3 and effects.leak_drive_area_m2 belong to the "
+                         "driving side of one stroke: a cycle would move them to the other "
+                         "chamber at the reversal; give the dead volumes per side in "
+                         "CylinderParams (dead_volume_m3, dead_volume_rod_m3) instead")
     _check("dwell_s", dwell_s, allow_none=False)
     pa = rig.gas.ambient_pressure_pa
     ext = Plant(rig.with_(stroke_direction="extend"))
@@ -117,8 +123,12 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
         travel = 0.0
     ret.reset(p_line_pa=pa, p_drive_pa=rod_p, p_exhaust_pa=cap_p, position_m=travel)
     b_e, b_r = ext._b, ret._b
-    cap_before, rod_before = ext.y[b_e + L.Y_MD], ext.y[b_e + L.Y_ME]
-    err = max(abs(ret.y[b_r + L.Y_ME] / cap_before - 1.0), abs(ret.y[b_r + L.Y_MD] / rod_before - 1.0),
+    for a, b in ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD),
+                 (L.Y_SD, L.Y_SE), (L.Y_SE, L.Y_SD)):  # each chamber keeps its air and heat
+        ret.y[b_r + b] = ext.y[b_e + a]
+    ret._m0 = ret.total_air_mass_kg
+    pd_r, pe_r = ret.p_drive_pa, ret.p_exhaust_pa
+    err = max(abs(pd_r / rod_p - 1.0), abs(pe_r / cap_p - 1.0),
               abs(ext.mass_balance_error_kg) / ext.total_air_mass_kg)
     back = _stroke(ret, cut_retract_s, dwell_s, t_max_s)
     err = max(err, abs(ret.mass_balance_error_kg) / ret.total_air_mass_kg)

@@ -155,8 +155,8 @@ class CylinderParams:
             _positive(self, "dead_volume_rod_m3")
             _plausible(self, "dead_volume_rod_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
         _check(self, "mounting_angle_deg", -90.0 <= self.mounting_angle_deg <= 90.0,
-               "in [-90, 90] degrees (0 horizontal, +90 rod pointing up; radians given as "
-               "degrees?)" if abs(self.mounting_angle_deg) > 90 else "in [-90, 90] degrees")
+               "in [-90, 90] degrees (0 horizontal, +90 rod pointing up, -90 rod pointing "
+               "down)")
         if self.design == "single-rod":
             _check(self, "rod_m", self.rod_m > 0.0, "> 0 for a single-rod cylinder")
         _nonneg(self, "rod_m", "cushion_length_m", "moving_mass_extra_kg")
@@ -435,7 +435,7 @@ class RigParams:
                f"one of {list(STROKE_DIRECTIONS)}"
                f"{did_you_mean(self.stroke_direction, STROKE_DIRECTIONS)}")
         _check(self, "external_force_n", abs(self.external_force_n) <= 1e6,
-               "at most 1e6 N in size (a process force opposing the stroke; kN given as N?)")
+               "at most 1e6 N in size (a constant process force opposing the stroke, in N)")
         if self.moving_mass_kg <= 0.0:
             raise ValueError(f"RigParams: the moving mass load_mass_kg + "
                              f"CylinderParams.moving_mass_extra_kg = {self.moving_mass_kg:g} kg "
@@ -453,14 +453,14 @@ class RigParams:
 
     # -- the stroke: which chamber drives, the loads along the motion -----------------------
     @property
-    def drive_area_m2(self) -> float:
+    def drive_piston_area_m2(self) -> float:
         """Piston face area [m²] of the driving chamber: the cap side's when extending, the rod
         side's (annulus) when retracting."""
         c = self.cylinder
         return c.cap_area_m2 if self.stroke_direction == "extend" else c.piston_area_m2
 
     @property
-    def exhaust_area_m2(self) -> float:
+    def exhaust_piston_area_m2(self) -> float:
         """Piston face area [m²] of the exhausting chamber."""
         c = self.cylinder
         return c.piston_area_m2 if self.stroke_direction == "extend" else c.cap_area_m2
@@ -490,7 +490,7 @@ class RigParams:
     def cannot_move(self) -> str | None:
         """Why the supply can never move the piston (its force at full supply, with the loads
         along the motion, does not beat the static friction), or None."""
-        force = self.supply_pressure_gauge_pa * self.drive_area_m2 + self.load_force_n
+        force = self.supply_pressure_gauge_pa * self.drive_piston_area_m2 + self.load_force_n
         if force > self.friction.static_n:
             return None
         load = (f" (with {self.load_force_n:+.4g} N of gravity and external force along the "

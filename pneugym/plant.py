@@ -128,8 +128,8 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_LIN] = v.linear_ratio
     P[L.P_DELAY] = params.valve_delay_s
     P[L.P_RAMP] = v.ramp_s
-    P[L.P_AP] = params.drive_area_m2
-    P[L.P_AE] = params.exhaust_area_m2
+    P[L.P_AP] = params.drive_piston_area_m2
+    P[L.P_AE] = params.exhaust_piston_area_m2
     P[L.P_FLOAD] = params.load_force_n
     P[L.P_STROKE] = c.stroke_m
     P[L.P_V0D] = params.drive_dead_volume_m3 + e.dead_volume_m3
@@ -262,7 +262,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
         lam_f = 32.0 * g.viscosity_pa_s * R * T / (0.5 * pa * ln.diameter_m**2)
         out["line friction"] = RK3_REAL_LIMIT / lam_f
     M = params.moving_mass_kg
-    A, Ae = params.drive_area_m2, params.exhaust_area_m2
+    A, Ae = params.drive_piston_area_m2, params.exhaust_piston_area_m2
     if M > 0:
         if A == Ae:  # (this form for a double-rod cylinder: the substeps stay as they were)
             k = A * A * ps * (1.0 / v0d + 1.0 / v0e)

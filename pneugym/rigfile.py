@@ -599,9 +599,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"# {a.file}: a valid rig")
     print(format_rig(rig, ref, ref_name))
     n = len(rig_difference(ref, rig))
-    faces = (f"piston area {rig.drive_area_m2:.4g} m²" if rig.drive_area_m2 == rig.exhaust_area_m2
-             else f"piston faces {rig.drive_area_m2:.4g} m² driving, {rig.exhaust_area_m2:.4g} m² "
-                  f"exhausting")
+    ad, ae = rig.drive_piston_area_m2, rig.exhaust_piston_area_m2
+    faces = (f"piston area {ad:.4g} m²" if ad == ae
+             else f"piston faces {ad:.4g} m² driving, {ae:.4g} m² exhausting")
     along = f", {rig.load_force_n:+.4g} N of constant load along the motion" \
         if rig.load_force_n else ""
     print(f"# derived: {faces}, moving mass {rig.moving_mass_kg:g} kg, valve delay "

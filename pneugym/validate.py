@@ -202,7 +202,7 @@ def check_cylinders() -> list[Row]:
         rig = single_rod_rig(cylinder={"mounting_angle_deg": angle})
         sim, _ = breakaway_gauge_pa(rig)
         need = (rig.friction.static_n + rig.moving_mass_kg * STANDARD_GRAVITY
-                * math.sin(math.radians(angle))) / rig.drive_area_m2
+                * math.sin(math.radians(angle))) / rig.drive_piston_area_m2
         rows.append(Row("cylinders", f"single-rod breakaway pressure, {angle:g} deg (gauge)",
                         sim / BAR, need / BAR, 0.02, "bar", True,
                         "p_d A_cap - p_a A_cap = Fs + M g sin(angle), exhaust vented"))
@@ -210,8 +210,8 @@ def check_cylinders() -> list[Row]:
     plant = Plant(rig)
     tr = plant.run(1.6, [(0.0, 1), (0.08, 0)], record_dt=0.01)
     pd, pe = plant.p_drive_pa, plant.p_exhaust_pa
-    force = (pd - pe) * rig.drive_area_m2 + (rig.gas.ambient_pressure_pa - pe) * (
-        rig.exhaust_area_m2 - rig.drive_area_m2) + rig.load_force_n
+    force = (pd - pe) * rig.drive_piston_area_m2 + (rig.gas.ambient_pressure_pa - pe) * (
+        rig.exhaust_piston_area_m2 - rig.drive_piston_area_m2) + rig.load_force_n
     rows.append(Row("cylinders", "vertical, cut mid-stroke: |net force at rest| / Fs",
                     abs(force) / rig.friction.static_n, 0.0, 1.0, "-", False,
                     "trapped air holds 20 kg within the breakaway friction"))

@@ -36,11 +36,11 @@ def test_the_thesis_rig_keeps_its_packed_parameters():
 def test_single_rod_areas_and_loads():
     rig = single_rod(cylinder={"mounting_angle_deg": 30.0}, external_force_n=50.0)
     cap, ann = math.pi / 4 * 0.05**2, math.pi / 4 * (0.05**2 - 0.02**2)
-    assert rig.drive_area_m2 == pytest.approx(cap) and rig.exhaust_area_m2 == pytest.approx(ann)
+    assert rig.drive_piston_area_m2 == pytest.approx(cap) and rig.exhaust_piston_area_m2 == pytest.approx(ann)
     weight = rig.moving_mass_kg * STANDARD_GRAVITY
     assert rig.load_force_n == pytest.approx(-0.5 * weight - 50.0)
     back = rig.with_(stroke_direction="retract")
-    assert back.drive_area_m2 == pytest.approx(ann) and back.exhaust_area_m2 == pytest.approx(cap)
+    assert back.drive_piston_area_m2 == pytest.approx(ann) and back.exhaust_piston_area_m2 == pytest.approx(cap)
     assert back.load_force_n == pytest.approx(0.5 * weight - 50.0)  # gravity helps it down
 
 
@@ -62,7 +62,7 @@ def test_breakaway_follows_the_load():
     flat, _ = breakaway_gauge_pa(single_rod_rig())
     up, _ = breakaway_gauge_pa(single_rod_rig(cylinder={"mounting_angle_deg": 90.0}))
     pushed, pe = breakaway_gauge_pa(single_rod_rig(external_force_n=100.0))
-    area = single_rod_rig().drive_area_m2
+    area = single_rod_rig().drive_piston_area_m2
     assert up - flat == pytest.approx(6.0 * STANDARD_GRAVITY / area, rel=0.05)
     assert pushed - flat == pytest.approx(100.0 / area, rel=0.05)
     assert pe == pytest.approx(PA, rel=1e-3)
@@ -102,11 +102,12 @@ def test_mass_is_conserved_in_a_single_rod_inclined_stroke():
     ({"cylinder": {"design": "single"}}, r"design = 'single' is invalid: must be one of "
                                          r"\['double-rod', 'single-rod'\] \(did you mean"),
     ({"cylinder": {"design": "single-rod", "rod_m": 0.0}}, "rod_m = 0.0 is invalid: must be > 0"),
-    ({"cylinder": {"mounting_angle_deg": 180.0}}, r"in \[-90, 90\] degrees \(0 horizontal"),
+    ({"cylinder": {"mounting_angle_deg": 180.0}}, r"in \[-90, 90\] degrees \(0 horizontal, "
+                                                  r"\+90 rod pointing up"),
     ({"cylinder": {"mounting_angle_deg": 1.57}}, None),
     ({"stroke_direction": "out"}, r"stroke_direction = 'out' is invalid: must be one of "
                                   r"\['extend', 'retract'\]"),
-    ({"external_force_n": 5e6}, "kN given as N"),
+    ({"external_force_n": 5e6}, "at most 1e6 N in size"),
     ({"cylinder": {"dead_volume_rod_m3": 2.0}}, "litres or cm³ given as m³"),
 ])
 def test_bad_cylinder_values_are_refused(changes, match):
@@ -195,7 +196,7 @@ def test_the_environment_runs_a_single_rod_vertical_retract_stroke():
                          valve={"area_m2": 1.5e-5})
     env = gym.make("pneugym/CutOff-v0", rig=rig)
     policy = make_policy("gaslaw", env)
-    assert float(np.ravel(policy._area)[0]) == pytest.approx(rig.drive_area_m2)
+    assert float(np.ravel(policy._area)[0]) == pytest.approx(rig.drive_piston_area_m2)
     endstroke = make_policy("endstroke", env)
     obs, info = env.reset(seed=0)
     done = False
@@ -215,6 +216,21 @@ def test_the_jit_cache_is_keyed_on_every_jitted_source(tmp_path, monkeypatch):
 
     tag = _jitcache.sources_hash()
     assert len(tag) == 16 and tag == _jitcache.sources_hash()
+    import shutil
+
+    copy = tmp_path / "pkg"
+    shutil.copytree(_jitcache.PACKAGE / "physics", copy / "physics",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    before = _jitcache.sources_hash(copy)
+    layout = copy / "physics" / "layout.py"  # no numba in it: its indices are read by kernels
+    assert b"numba" not in layout.read_bytes()
+    layout.write_text(layout.read_text().replace("P_AE = 51", "P_AE = 52"))
+    changed = _jitcache.sources_hash(copy)
+    assert changed != before
+    (copy / "notes.py").write_text("x = 1\n")  # a file outside physics without numba: no change
+    assert _jitcache.sources_hash(copy) == changed
+    tmp_path = tmp_path / "cache"
+    tmp_path.mkdir()
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     monkeypatch.setenv("PNEUGYM_NUMBA_CACHE", str(tmp_path))
     fresh, stale = tmp_path / ("a" * 16), tmp_path / ("b" * 16)
@@ -288,3 +304,18 @@ def test_a_steady_cycle_starts_where_the_last_ended():
         steady_cycle(rig, cycles=0)
     with pytest.raises(ValueError, match="dwell_s = -1.0 must be a finite number >= 0"):
         run_cycle(rig, dwell_s=-1.0)
+
+
+def test_a_cycle_carries_air_and_heat_across_the_reversal():
+    """With heat transfer the chambers' temperatures are not ambient at the reversal: their air
+    and temperature are carried, not rebuilt from pressures; effects bound to the driving side
+    are refused (a cycle would move them to the other chamber)."""
+    from pneugym.cycle import run_cycle
+
+    warm = run_cycle(thesis_rig(2.5, effects={"heat_transfer_time_constant_s": 0.5,
+                                              "leak_piston_area_m2": 1e-7}),
+                     cut_extend_s=0.9, dwell_s=0.1)
+    assert warm.completed and warm.mass_balance_error < 1e-12
+    for effect in ({"dead_volume_m3": 1e-4}, {"leak_drive_area_m2": 1e-7}):
+        with pytest.raises(ValueError, match="belong to the driving side of one stroke"):
+            run_cycle(thesis_rig(2.5, effects=effect))

@@ -72,16 +72,19 @@ def test_learned_policies_decide_as_in_the_environment(runs, algo, over):
 
 
 def test_the_check_sees_a_difference():
-    """Fed the true (noise-free) position instead of what the sensor read, the observation
-    differs: the comparison can fail."""
+    """Fed what the sensors read, the first observation is the environment's; 1 µm off in
+    position, it differs there and only there: the comparison can fail."""
     cond = Conditions(supply_pressure_gauge_pa=3e5, load_mass_kg=10.0, position_noise_m=3e-5)
     tr = environment_trace(make_policy("endstroke", CutOffVectorEnv(observe_rig=True)), [cond],
                            0, {"observe_rig": True})[0]
     env = CutOffVectorEnv(observe_rig=True)
     ctl = Controller(make_policy("endstroke", env), env)
-    ctl.reset(4e5 + PA, 10.0)
-    ctl.step(tr["t"][0], tr["x"][0] + 1e-6, tr["p_drive"][0], tr["p_exhaust"][0])
-    assert not np.array_equal(ctl.observation, tr["obs"][0])
+    names = env.observation_names
+    for dx, differing in ((0.0, []), (1e-6, ["position"])):
+        ctl.reset(3e5 + PA, 10.0)
+        ctl.step(tr["t"][0], tr["x"][0] + dx, tr["p_drive"][0], tr["p_exhaust"][0])
+        diff = np.flatnonzero(ctl.observation.view(np.uint32) != tr["obs"][0].view(np.uint32))
+        assert [names[i] for i in diff] == differing
 
 
 class Flicker(Policy):
@@ -322,3 +325,23 @@ def test_pneugym_export_writes_a_controller(runs, tmp_path, capsys):
                                                             "controller.json"}
     with pytest.raises(ValueError, match="has no neural network"):
         main(["export", "gaslaw", "--out", str(tmp_path / "y")])
+
+
+def test_a_retract_rig_is_refused():
+    from pneugym import thesis_rig
+
+    with pytest.raises(ValueError, match="stroke_direction is 'retract'; the controller runs "
+                                         "extension strokes"):
+        Controller.load("gaslaw", rig=thesis_rig(2.5, stroke_direction="retract"))
+
+
+def test_the_quantile_rule_restarts_with_every_stroke(runs):
+    """A stroke whose first sample comes 2 ms after the extend command (not at t = 0) starts
+    the quantile rule afresh: two identical strokes, identical commands."""
+    ctl = Controller.load(runs["ppo"], decision={"rule": "quantile", "value": 0.05})
+    strokes = []
+    for _ in range(2):
+        ctl.reset(3.5e5 + PA)
+        strokes.append([ctl.step(0.002 + k * 0.005, min(k * 1e-3, 0.18), 2e5 + PA, 1.5e5 + PA)
+                        for k in range(120)])
+    assert strokes[0] == strokes[1] and 0 < sum(strokes[0]) < 120

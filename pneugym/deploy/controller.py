@@ -63,6 +63,11 @@ class Controller:
         if u.reversible:
             raise ValueError(f"{source}: a controller latches the cut; build the environment "
                              f"with reversible=False")
+        if u.rig.stroke_direction != "extend":
+            raise ValueError(f"{source}: the rig's stroke_direction is "
+                             f"{u.rig.stroke_direction!r}; the controller runs extension strokes "
+                             f"(position from the retracted end), the strokes its policies were "
+                             f"trained on")
         if not 0.0 < period_tolerance < 0.5:
             raise ValueError(f"period_tolerance = {period_tolerance!r} must lie in (0, 0.5) (a "
                              f"fraction of the control period)")

@@ -6,9 +6,9 @@ and what the model predicts that cut saves, beside the cut the run itself made.
 The run's samples are resampled at the controller's period (linear interpolation) and fed to the
 controller from the extend command until it cuts. Its decision is exact up to the run's own cut:
 after that the recording shows a stroke the controller's command would not have produced, so a
-controller that had not cut by then is flagged (``after_recorded_cut``), and if it never cut,
-its outcome is unknown (``predicted`` None). The prediction runs the
-environment's plant on the rig (the controller's, or ``--rig``) at the run's supply and load.
+controller that had not cut by then is flagged (``after_recorded_cut``) and its outcome is
+unknown (``predicted`` None). The prediction runs the environment's plant on the rig the run's
+JSON states (over the controller's), or on ``--model-rig``, at the run's supply and load.
 """
 from __future__ import annotations
 
@@ -71,11 +71,17 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None) -
     """Feed ``run`` (a :class:`pneugym.data.MeasuredRun`) to ``controller``; returns its cut
     time [s] (None: it never cut while recorded), the run's own, and the outcome the model
     predicts for each and for a conventional stroke (:func:`predict_cuts` on ``rig``, default
-    the controller's, at the run's supply and load)."""
+    the rig the run's JSON states over the controller's, at the run's supply, load and external
+    force). A controller that had not cut by the run's own cut is flagged
+    (``after_recorded_cut``) and its outcome is unknown (``predicted`` None)."""
     p = controller.period_s
     if run.sample_dt_s > p * (1 + 1e-6):
         raise ValueError(f"{run.name}: sampled every {run.sample_dt_s * 1e3:.3g} ms, coarser than "
                          f"the controller's period ({p * 1e3:g} ms): it cannot be replayed")
+    stated = run.rig(controller.rig)  # the run's own rig section over the controller's rig
+    if stated.stroke_direction != "extend":
+        raise ValueError(f"{run.name}: a {stated.stroke_direction} stroke; the controller runs "
+                         f"extension strokes")
     supply = float(run.meta["supply_pressure_gauge_pa"])
     load = float(run.meta.get("load_mass_kg", controller.rig.load_mass_kg))
     pa = float(run.meta.get("ambient_pressure_pa", controller.rig.gas.ambient_pressure_pa))
@@ -88,12 +94,12 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None) -
             break
     cut, own = controller.cut_time_s, recorded_cut_s(run)
     late = own is not None and (cut is None or cut > own)
-    model_rig = (rig or controller.rig).with_(supply_pressure_gauge_pa=supply, load_mass_kg=load)
+    model_rig = (rig or stated).with_(supply_pressure_gauge_pa=supply, load_mass_kg=load,
+                                      external_force_n=stated.external_force_n)
     ctl, rec, conv = predict_cuts(model_rig, [cut, own, None], p)
     return {"run": run.name, "description": run.description, "supply_bar_gauge": supply / 1e5,
             "load_kg": load, "cut_time_s": cut, "recorded_cut_time_s": own,
-            "after_recorded_cut": late,
-            "predicted": None if cut is None and own is not None else ctl,
+            "after_recorded_cut": late, "predicted": None if late else ctl,
             "predicted_recorded": rec, "predicted_conventional": conv}
 
 

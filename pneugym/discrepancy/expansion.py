@@ -62,7 +62,7 @@ def fit_index(p: np.ndarray, volume: np.ndarray, mass: np.ndarray | None = None)
 
 
 def _chamber_volume(rig: RigParams, x: np.ndarray) -> np.ndarray:
-    return rig.drive_dead_volume_m3 + rig.effects.dead_volume_m3 + rig.drive_area_m2 * x
+    return rig.drive_dead_volume_m3 + rig.effects.dead_volume_m3 + rig.drive_piston_area_m2 * x
 
 
 def expansion_index(run: MeasuredRun, rig: RigParams, model: RigParams | None = None) -> ExpansionIndex:
