@@ -540,6 +540,14 @@ class Plant:
         return float(K.chamber_pressures(self.y, self.P, self._b)[1])
 
     @property
+    def net_force_n(self) -> float:
+        """Net force [N] on the piston along the stroke, friction aside (air on both faces,
+        ambient on the rod's end, gravity and the external force):
+        :func:`pneugym.physics.cylinder.piston_force` on the chamber pressures."""
+        pd, pe, _, _ = K.chamber_pressures(self.y, self.P, self._b)
+        return float(K.piston_force(pd, pe, self.P))
+
+    @property
     def sensor_pressures_pa(self) -> tuple[float, float]:
         """Driving and exhaust port pressures as the (possibly lagged) transducers read them."""
         return float(self.y[self._b + L.Y_SD]), float(self.y[self._b + L.Y_SE])

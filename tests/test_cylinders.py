@@ -319,3 +319,20 @@ def test_a_cycle_carries_air_and_heat_across_the_reversal():
     for effect in ({"dead_volume_m3": 1e-4}, {"leak_drive_area_m2": 1e-7}):
         with pytest.raises(ValueError, match="belong to the driving side of one stroke"):
             run_cycle(thesis_rig(2.5, effects=effect))
+
+
+def test_net_force_is_the_kernels_force_law():
+    """``Plant.net_force_n``: (p_d - p_e) A_p on the thesis rig; on a single-rod cylinder, rod
+    up, the faces, ambient on the rod's end and gravity."""
+    from pneugym.validate import single_rod_rig
+
+    plant = Plant(thesis_rig(2.5))
+    assert plant.net_force_n == (plant.p_drive_pa - plant.p_exhaust_pa) * \
+        RigParams().cylinder.piston_area_m2
+    rig = single_rod_rig(cylinder={"mounting_angle_deg": 90.0})
+    plant = Plant(rig)
+    pd, pe = plant.p_drive_pa, plant.p_exhaust_pa
+    expect = (pd * rig.drive_piston_area_m2 - pe * rig.exhaust_piston_area_m2
+              - PA * (rig.drive_piston_area_m2 - rig.exhaust_piston_area_m2)
+              - rig.moving_mass_kg * STANDARD_GRAVITY)
+    assert plant.net_force_n == pytest.approx(expect, rel=1e-12)

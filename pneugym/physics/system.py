@@ -18,7 +18,7 @@ Array layouts: :mod:`pneugym.physics.layout`. Everything is SI with absolute pre
 from .advance import advance, advance_ws, command_advance, record_row, work_size
 from .batch import advance_batch
 from .chain import CHAIN_MAX_IT, CHAIN_TOL, implicit_chain, signed_flow_deriv
-from .cylinder import chamber_pressures
+from .cylinder import chamber_pressures, piston_force
 from .energy import driving_side_energy, energy_wasted, filled_energy, max_drive_force, total_air_mass
 from .events import V_STICK, piston_events
 from .rhs import rhs, rhs_valve, stage_rhs
@@ -38,7 +38,7 @@ __all__ = [
     "CHAIN_MAX_IT", "CHAIN_TOL", "IMEX_A21", "IMEX_A22", "IMEX_A31", "IMEX_A32", "IMEX_A33",
     "V_STICK", "advance", "advance_batch", "advance_ws", "chamber_pressures", "command",
     "command_advance", "driving_side_energy", "energy_wasted", "filled_energy", "implicit_chain",
-    "max_drive_force", "piston_events", "pop_due_commands", "record_row", "rhs", "rhs_valve",
+    "max_drive_force", "piston_events", "piston_force", "pop_due_commands", "record_row", "rhs", "rhs_valve",
     "signed_flow_deriv", "spool_position", "stage_rhs", "substep", "supply_flow",
     "supply_pressure", "total_air_mass", "valve_closed", "valve_opening", "work_size",
 ]
