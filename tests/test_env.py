@@ -21,7 +21,7 @@ from pneugym.physics import system as K
 
 STEP_KEYS = {"time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut", "measured_x_m",
              "measured_p_drive_pa", "measured_p_exhaust_pa"}
-FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg",
+FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg", "free_air_nl",
               "stroke_time_s", "conventional_stroke_time_s", "time_increase", "cutoff_time_s",
               "stalled", "stick_slip_events", "completed"}
 NF = len(OBSERVATION)
@@ -262,7 +262,7 @@ def test_info_keys_and_types():
         assert set(info) == STEP_KEYS
     assert set(out["final"]) == STEP_KEYS | FINAL_KEYS | {"objective"}
     types = {"saving_ratio": float, "energy_wasted_j": float, "energy_conventional_j": float,
-             "air_mass_kg": float, "stroke_time_s": float, "conventional_stroke_time_s": float,
+             "air_mass_kg": float, "free_air_nl": float, "stroke_time_s": float, "conventional_stroke_time_s": float,
              "time_increase": float, "cutoff_time_s": float, "stalled": bool,
              "stick_slip_events": int, "completed": bool, "objective": float,
              "time_s": float, "position_m": float, "p_drive_pa": float, "p_exhaust_pa": float,

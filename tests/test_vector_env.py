@@ -17,7 +17,7 @@ from pneugym.envs import ENV_ID, Conditions
 from pneugym.envs.cutoff import CutOffEnv, CutOffVectorEnv
 from pneugym.envs.sb3 import CutOffVecEnv
 
-FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg",
+FINAL_KEYS = {"saving_ratio", "energy_wasted_j", "energy_conventional_j", "air_mass_kg", "free_air_nl",
               "stroke_time_s", "conventional_stroke_time_s", "time_increase", "cutoff_time_s",
               "stalled", "stick_slip_events", "completed", "objective"}
 QUIET = {"position_noise_m": 0.0, "pressure_noise_pa": 0.0}

@@ -55,6 +55,7 @@ from ..physics import layout as L
 from ..physics import system as K
 from ..physics.energy import saving_ratio
 from ..plant import Plant, SimulationError, set_supply_dip
+from ..units import free_air_nl
 from . import episode as EP
 from .conditions import Conditions, ConditionSpace, as_conditions, resolve
 
@@ -460,6 +461,7 @@ class _CutOffCore:
             "energy_wasted_j": ew,
             "energy_conventional_j": ec,
             "air_mass_kg": float(self.Y[i, self._b + L.Y_MIN]),
+            "free_air_nl": free_air_nl(float(self.Y[i, self._b + L.Y_MIN])),
             "stroke_time_s": stroke,
             "conventional_stroke_time_s": t_conv,
             "time_increase": (stroke / t_conv - 1.0) if completed else None,
