@@ -582,21 +582,43 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "units, and how it differs from the thesis rig (or from FILE2). What the file "
                     "does not give is the thesis rig's.",
         epilog="examples:\n  pneugym rig my_rig.yaml\n"
+               "  pneugym rig --preset iso15552-50 --stroke-mm 300 --out my_rig.yaml\n"
                "  python -m pneugym.rigfile report/updated_model.json my_rig.yaml\n"
                "  python -m pneugym.rigfile runs/conventional.json   # a measured run's rig",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("file", metavar="FILE", help="the rig file to check")
+    ap.add_argument("file", metavar="FILE", nargs="?", default=None,
+                    help="the rig file to check (or --preset)")
     ap.add_argument("other", metavar="FILE2", nargs="?", default=None,
                     help="compare with this rig file instead of the thesis rig")
+    ap.add_argument("--preset", default=None,
+                    help="start from a standard cylinder instead of a file: a named preset "
+                         "(iso15552-50, ...) or a bore in mm (8-320); see pneugym.presets")
+    ap.add_argument("--stroke-mm", type=float, default=200.0, help="the preset's stroke [mm]")
+    ap.add_argument("--supply-bar", type=float, default=6.0, help="the preset's supply [bar gauge]")
+    ap.add_argument("--load-kg", type=float, default=0.0, help="the preset's payload [kg]")
+    ap.add_argument("--out", default=None, help="write the rig to this file (.yaml or .json)")
     a = ap.parse_args(argv)
+    if (a.file is None) == (a.preset is None):
+        ap.error("give a rig FILE or --preset, one of the two")
     try:
-        rig = load(a.file)
+        if a.preset is not None:
+            from .presets import cylinder_rig, preset
+
+            kw = dict(supply_bar=a.supply_bar, load_kg=a.load_kg)
+            rig = (cylinder_rig(float(a.preset), a.stroke_mm, **kw)
+                   if a.preset.replace(".", "", 1).isdigit()
+                   else preset(a.preset, a.stroke_mm, **kw))
+            source = f"preset {a.preset}, stroke {a.stroke_mm:g} mm"
+        else:
+            rig, source = load(a.file), a.file
         ref = load(a.other) if a.other else RigParams()
+        if a.out:
+            rig.save(a.out)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     ref_name = a.other or "the thesis rig"
-    print(f"# {a.file}: a valid rig")
+    print(f"# {source}: a valid rig" + (f", written to {a.out}" if a.out else ""))
     print(format_rig(rig, ref, ref_name))
     n = len(rig_difference(ref, rig))
     ad, ae = rig.drive_piston_area_m2, rig.exhaust_piston_area_m2

@@ -226,6 +226,8 @@ def check_cylinders() -> list[Row]:
     rows.append(Row("cylinders", "mass balance over a full cycle, single-rod, rod up, cut-off",
                     c.mass_balance_error, 0.0, 1e-9, "relative", False,
                     "both strokes, and the air carried across the reversal"))
+    rows.extend(check_free_fall())
+    rows.extend(check_sizes())
     pl = Plant(single_rod_rig(cylinder={"mounting_angle_deg": -45.0}, external_force_n=30.0,
                               effects={"leak_piston_area_m2": 1e-7}))
     pl.run(2.0, [(0.0, 1), (0.25, 0)], record_dt=0.01)
@@ -233,6 +235,69 @@ def check_cylinders() -> list[Row]:
                     abs(pl.mass_balance_error_kg) / pl.total_air_mass_kg, 0.0, 1e-9, "relative",
                     False, "|m(t) - m(0) - m_in + m_out| / m(t)"))
     return rows
+
+
+def free_fall_time_s(rig: RigParams) -> float:
+    """Time [s] a piston takes to fall its stroke from rest under ``M g - C - Kv v`` (no air):
+    ``x(t) = v_inf (t - tau (1 - exp(-t / tau)))``, ``v_inf = (M g - C) / Kv``, ``tau = M / Kv``."""
+    from scipy.optimize import brentq
+
+    from .params import STANDARD_GRAVITY
+
+    m, f = rig.moving_mass_kg, rig.friction
+    v_inf = (m * STANDARD_GRAVITY - f.coulomb_n) / f.viscous_n_s_per_m
+    tau = m / f.viscous_n_s_per_m
+    stroke = rig.cylinder.stroke_m
+    return float(brentq(lambda t: v_inf * (t - tau * (1.0 - math.exp(-t / tau))) - stroke,
+                        1e-9, 1e3))
+
+
+def check_free_fall() -> list[Row]:
+    """An unpressurised vertical piston (rod down, both chambers at ambient, the valve never
+    opened) falls its stroke against friction; chambers of 0.1 m³ keep the air's springs below
+    0.5 % of the net force, so the fall is the analytic one of :func:`free_fall_time_s`."""
+    rig = single_rod_rig(cylinder={"mounting_angle_deg": -90.0, "dead_volume_m3": 0.1,
+                                   "dead_volume_rod_m3": 0.1}, load_mass_kg=20.0)
+    pl = Plant(rig)
+    pl.reset(p_exhaust_pa=rig.gas.ambient_pressure_pa)
+    pl.advance(2.0, command=0, stop_on_arrival=True)
+    t = pl.arrival_time_s if pl.arrival_time_s is not None else math.nan
+    return [Row("cylinders", "free fall of an unpressurised vertical piston: time to fall",
+                t, free_fall_time_s(rig), 0.01, "s", True,
+                "M x'' = M g - C - Kv x', from rest (20 kg, 200 mm)")]
+
+
+#: the strokes of the size sweep [mm]
+SWEEP_STROKES_MM = (10.0, 100.0, 500.0, 2000.0)
+
+
+def size_sweep() -> list[dict]:
+    """Every standard bore of :mod:`pneugym.presets` (8-320 mm) at :data:`SWEEP_STROKES_MM`: a
+    conventional stroke at 6 bar on the automatic substep. One dict per cylinder."""
+    from .presets import BORES, cylinder_rig
+
+    out = []
+    for bore in sorted(BORES):
+        for stroke in SWEEP_STROKES_MM:
+            pl = Plant(cylinder_rig(bore, stroke))
+            pl.advance(30.0, command=1, stop_on_arrival=True)
+            out.append({"bore_mm": bore, "stroke_mm": stroke, "arrival_s": pl.arrival_time_s,
+                        "dt_s": pl.dt_s, "dt_limited_by": pl.dt_limited_by,
+                        "retries": pl.dt_retries, "stick_slips": pl.stick_events,
+                        "mass_balance": abs(pl.mass_balance_error_kg) / pl.total_air_mass_kg})
+    return out
+
+
+def check_sizes() -> list[Row]:
+    """The size sweep: every cylinder arrives, on its automatic substep, conserving mass."""
+    runs = size_sweep()
+    n = len(runs)
+    arrived = sum(r["arrival_s"] is not None and r["retries"] == 0 for r in runs)
+    worst = max(r["mass_balance"] for r in runs)
+    return [Row("cylinders", f"sizes 8-320 mm x 10-2000 mm: strokes completed of {n}", arrived,
+                n, 0.0, "-", False, "conventional, 6 bar, automatic substep, no retry"),
+            Row("cylinders", "sizes 8-320 mm x 10-2000 mm: worst mass balance", worst, 0.0,
+                1e-9, "relative", False, "|m(t) - m(0) - m_in + m_out| / m(t)")]
 
 
 # ------------------------------------------------------------------------------------------

@@ -47,11 +47,12 @@ def test_single_rod_areas_and_loads():
 def test_the_validation_rows_of_the_cylinders_pass():
     """``pneugym validate``'s cylinder rows: single-rod breakaway at its static force balance
     (horizontal and rod up, within 2 %), a vertical cylinder holding its load on trapped air,
-    the double-rod retract stroke equal to its extension (symmetry, exactly), mass balance."""
+    the double-rod retract stroke equal to its extension (symmetry, exactly), mass balance, the
+    free fall of an unpressurised vertical piston, the size sweep."""
     from pneugym.validate import check_cylinders
 
     rows = check_cylinders()
-    assert len(rows) == 7 and all(r.passed for r in rows), [r for r in rows if not r.passed]
+    assert len(rows) == 10 and all(r.passed for r in rows), [r for r in rows if not r.passed]
     assert rows[4].quantity.startswith("double-rod retract") and rows[4].simulated == 0.0
 
 
