@@ -263,3 +263,52 @@ def test_a_family_model_warns_only_outside_the_family(tmp_path):
     form = CutOffVectorEnv(num_envs=1, rig=apply_changes(RigParams(), rigs["form-leaks-heat"]))
     with pytest.warns(RigMismatchWarning, match="leak_piston_area_m2"):  # not in the family
         check_rig(Pol(), None, form)
+
+
+def test_the_cylinders_family_draws_single_rod_and_inclined_cylinders():
+    space = PRESETS["family-cylinders"]
+    fam = space.family
+    draws = [space.sample(np.random.default_rng([4, i])) for i in range(24)]
+    designs = {dict(c.rig_changes)["cylinder.design"] for c in draws}
+    angles = [dict(c.rig_changes)["cylinder.mounting_angle_deg"] for c in draws]
+    assert designs == {"single-rod", "double-rod"}
+    assert any(a == 0.0 for a in angles) and any(a > 0 for a in angles) and any(a < 0 for a in angles)
+    for c in draws:
+        rig = c.rig()
+        assert fam.outside(rig) == [] and -90.0 <= rig.cylinder.mounting_angle_deg <= 90.0
+        t, _ = conventional_figures(rig, c.dip)  # every draw completes, lifting or lowering
+        assert t <= fam.max_conventional_time_s
+    # the default family draws neither, and says so of a rig that has them
+    assert all("cylinder.design" not in dict(c.rig_changes) for c in
+               (FAMILY.sample(np.random.default_rng(i)) for i in range(3)))
+    inclined = next(c.rig() for c in draws if dict(c.rig_changes)["cylinder.mounting_angle_deg"])
+    assert any(o.startswith("cylinder.mounting_angle_deg") for o in FAMILY.family.outside(inclined))
+
+
+def test_the_default_family_draws_what_it_always_drew():
+    """Cylinder draws are off by default and take no uniforms then: the first draw of a seed is
+    the one the main job's policies were trained and evaluated on (recorded values)."""
+    changes = dict(FAMILY.family.sample(np.random.default_rng(0)))
+    assert len(changes) == 18 and "cylinder.design" not in changes
+    assert changes["line.length_m"] == 1.6532495715022089  # (recorded before cylinder draws)
+    assert changes["friction.static_n"] == 165.11350888745895
+
+
+@pytest.mark.parametrize("kw", [dict(mounting_angle_deg=(-100.0, 0.0)),
+                                dict(mounting_angle_deg=(10.0, 0.0)), dict(p_single_rod=1.5)])
+def test_bad_cylinder_draws_are_refused(kw):
+    with pytest.raises(ValueError, match="RigFamily"):
+        RigFamily(**kw)
+
+
+def test_the_cylinders_suite_holds_out_single_rod_and_inclined_rigs():
+    from agents.evaluation.suites import CYLINDER_HELD_OUT, cylinder_rigs
+
+    rigs = cylinder_rigs()
+    assert len(rigs) == CYLINDER_HELD_OUT and rigs == cylinder_rigs()  # reproducible
+    designs = {dict(ch)["cylinder.design"] for ch in rigs.values()}
+    assert designs == {"single-rod", "double-rod"}
+    assert any(dict(ch)["cylinder.mounting_angle_deg"] != 0.0 for ch in rigs.values())
+    cells = suite_cells("cylinders")
+    assert len(cells) == CYLINDER_HELD_OUT * len(TRANSFER_POINTS)
+    assert cells[0][0] == "cyl-1/1.5bar-5kg"

@@ -53,7 +53,9 @@ def parser() -> argparse.ArgumentParser:
                     help="train.py budget for learned policies trained on demand")
     ap.add_argument("--suite", default="all", choices=[*SUITES, *EXTRA_SUITES, "all"],
                     help="which suite to run (default all: nominal, robustness and transfer; "
-                         "points: the transfer suite's operating points on the --rig rig)")
+                         "points: the transfer suite's operating points on the --rig rig; "
+                         "cylinders: held-out single-rod and inclined cylinders of the "
+                         "family-cylinders preset)")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per condition cell")
     ap.add_argument("--seed", type=int, default=EVAL_SEED,
                     help=f"seed of the episodes (default {EVAL_SEED:,}; keep >= {EVAL_SEED:,})")

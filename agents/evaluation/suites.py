@@ -8,7 +8,10 @@
 - ``transfer``: rigs no policy was trained on (:func:`transfer_rigs`): the thesis rig, held-out
   draws of the rig family, rigs beyond its edges and model forms it does not draw, each at four
   operating points (:data:`TRANSFER_POINTS`), each episode with its own oracle;
-- ``points`` (only when named): those operating points on the environment's own rig.
+- ``points`` (only when named): those operating points on the environment's own rig;
+- ``cylinders`` (only when named): :data:`CYLINDER_HELD_OUT` held-out draws of the
+  ``family-cylinders`` preset (single-rod and inclined cylinders among them) at those operating
+  points (:func:`cylinder_rigs`).
 
 Each cell's episodes are drawn from their own seeded generator (:func:`suite_episodes`), from
 :data:`EVAL_SEED` up: seeds no training or calibration uses."""
@@ -57,7 +60,9 @@ TRANSFER_FORMS: dict[str, dict[str, Any]] = {
 SUITES = ("nominal", "robustness", "transfer")
 #: suites that only run when named: ``points``, the transfer suite's operating points on the
 #: environment's own rig (``--rig``), for a policy retrained for that rig
-EXTRA_SUITES = ("points",)
+EXTRA_SUITES = ("points", "cylinders")
+#: held-out draws of the ``family-cylinders`` preset in the ``cylinders`` suite
+CYLINDER_HELD_OUT = 6
 #: the slowest conventional stroke [s] of an edge or model-form rig (the episodes' limit is 4 s)
 EDGE_MAX_CONVENTIONAL_TIME_S = 3.2
 
@@ -74,21 +79,8 @@ def transfer_rigs(base: RigParams | None = None) -> dict[str, tuple]:
     base = base or RigParams()
     family = PRESETS["family"].family
     rigs: dict[str, tuple] = {"thesis": ()}
-    rng = np.random.default_rng([EVAL_SEED, 12])
-    while len(rigs) <= TRANSFER_HELD_OUT:
-        changes = family.sample(rng, base)
-        dts = []
-        try:
-            for b, m in TRANSFER_POINTS:
-                c = Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m,
-                               rig_changes=changes)
-                dts.append(checked_substep(c.rig(base), c.dip, family.max_conventional_time_s,
-                                           family.max_conventional_sticks))
-        except ValueError:
-            continue
-        if any(dts):
-            changes += (("solver.dt_s", min(d for d in dts if d)),)
-        rigs[f"heldout-{len(rigs)}"] = changes
+    for k, changes in enumerate(held_out_draws("family", TRANSFER_HELD_OUT, 12, base)):
+        rigs[f"heldout-{k + 1}"] = changes
     for name, ch in {**TRANSFER_EDGES, **TRANSFER_FORMS}.items():
         changes = check_changes(ch, name)
         dts = []
@@ -104,6 +96,41 @@ def transfer_rigs(base: RigParams | None = None) -> dict[str, tuple]:
             changes = check_changes(changes + (("solver.dt_s", min(d for d in dts if d)),), name)
         rigs[name] = changes
     return rigs
+
+
+def held_out_draws(preset: str, n: int, stream: int, base: RigParams) -> list[tuple]:
+    """``n`` draws of the rig family of conditions preset ``preset`` from seed
+    ``[EVAL_SEED, stream]`` (seeds no training uses), as ``rig_changes`` to ``base``; a draw is
+    redrawn until every :data:`TRANSFER_POINTS` completes within the family's time bound."""
+    from pneugym.envs.conditions import PRESETS
+    from pneugym.envs.family import checked_substep
+
+    family = PRESETS[preset].family
+    rng = np.random.default_rng([EVAL_SEED, stream])
+    out: list[tuple] = []
+    while len(out) < n:
+        changes = family.sample(rng, base)
+        dts = []
+        try:
+            for b, m in TRANSFER_POINTS:
+                c = Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m,
+                               rig_changes=changes)
+                dts.append(checked_substep(c.rig(base), c.dip, family.max_conventional_time_s,
+                                           family.max_conventional_sticks))
+        except ValueError:
+            continue
+        if any(dts):
+            changes += (("solver.dt_s", min(d for d in dts if d)),)
+        out.append(changes)
+    return out
+
+
+def cylinder_rigs(base: RigParams | None = None) -> dict[str, tuple]:
+    """The rigs of the ``cylinders`` suite, by name (``cyl-1`` ...), as ``rig_changes`` to
+    ``base`` (default the thesis rig): held-out draws of the ``family-cylinders`` preset, whose
+    cylinders are single-rod or double-rod, horizontal or inclined (-90 to +90 degrees)."""
+    draws = held_out_draws("family-cylinders", CYLINDER_HELD_OUT, 13, base or RigParams())
+    return {f"cyl-{k + 1}": changes for k, changes in enumerate(draws)}
 
 
 def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, ConditionSpace]]:
@@ -130,9 +157,10 @@ def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, Con
         return cells
     if suite == "points":
         return [(f"{b:g}bar-{m:g}kg", _fixed(b, m)) for b, m in TRANSFER_POINTS]
-    if suite == "transfer":
+    if suite in ("transfer", "cylinders"):
+        rigs = transfer_rigs(rig) if suite == "transfer" else cylinder_rigs(rig)
         return [(f"{name}/{b:g}bar-{m:g}kg", _fixed(b, m, rig_changes=changes))
-                for name, changes in transfer_rigs(rig).items() for b, m in TRANSFER_POINTS]
+                for name, changes in rigs.items() for b, m in TRANSFER_POINTS]
     raise ValueError(f"unknown suite {suite!r}; choose one of {SUITES} or all")
 
 

@@ -8,7 +8,8 @@ small leaks, heat transfer), so that a policy cannot lean on one simulator's qui
 :meth:`RigFamily.sample` draws the changes to a base rig as ``((dotted field, value), ...)``,
 which :class:`~pneugym.envs.conditions.Conditions` carries as ``rig_changes``: the rig is then
 part of an episode's conditions (its oracle, its conventional figures, every cache key).
-Bore, rod and stroke stay the base rig's (the observation scales the position by the stroke).
+Bore, rod and stroke stay the base rig's (the observation scales the position by the stroke);
+the cylinder's design (single-rod) and mounting angle are drawn when the family asks for them.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ CHANGEABLE = (
     "valve.delay_s", "valve.flow_model", "friction.static_n", "friction.coulomb_n",
     "friction.viscous_n_s_per_m", "effects.leak_drive_area_m2", "effects.leak_piston_area_m2",
     "effects.heat_transfer_time_constant_s", "effects.stribeck_force_n", "effects.sensor_lag_s",
-    "solver.dt_s",
+    "solver.dt_s", "cylinder.design", "cylinder.mounting_angle_deg",
 )
 
 
@@ -129,7 +130,14 @@ class RigFamily:
     sample`), so every episode can complete within the time limit; so is one whose conventional
     stroke sticks and slips more than ``max_conventional_sticks`` times (its cushion makes the
     piston chatter into the end: no one runs a rig so adjusted, and the objective, which counts
-    every event, would then prefer not moving at all)."""
+    every event, would then prefer not moving at all).
+
+    Cylinders: with probability ``p_single_rod`` a draw makes the base cylinder single-rod (the
+    cap side drives the extension, the rod side keeps the drawn dead volume), with probability
+    ``p_inclined`` it mounts it at an angle drawn uniformly from ``mounting_angle_deg`` (+90:
+    rod up, the extension lifts the load). Both are 0 by default: the default family draws
+    exactly the rigs it always drew (the transfer suite's held-out rigs among them); the
+    ``"family-cylinders"`` preset of :mod:`pneugym.envs.conditions` turns them on."""
 
     dead_volume_m3: Range = (2e-5, 5e-4)
     line_length_m: Range = (0.3, 5.0)
@@ -153,6 +161,9 @@ class RigFamily:
     heat_transfer_time_constant_s: Range = (0.3, 3.0)
     max_conventional_time_s: float = 2.5
     max_conventional_sticks: int = 1
+    p_single_rod: float = 0.0
+    p_inclined: float = 0.0
+    mounting_angle_deg: Range = (-90.0, 90.0)
 
     _LOG = ("dead_volume_m3", "line_length_m", "valve_area_scale", "port_area_scale",
             "exhaust_area_scale", "cushion_factor_drive", "cushion_factor_exhaust",
@@ -167,6 +178,12 @@ class RigFamily:
             elif f.name == "max_conventional_sticks":
                 if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
                     raise ValueError(f"RigFamily.{f.name} = {v!r} must be an integer >= 0")
+            elif f.name == "mounting_angle_deg":
+                lo, hi = _range(f.name, (v[0] + 90.0, v[1] + 90.0) if isinstance(
+                    v, (tuple, list)) and len(v) == 2 else v)
+                if hi > 180.0:
+                    raise ValueError(f"RigFamily.{f.name} = {v!r} must lie in [-90, 90] degrees")
+                object.__setattr__(self, f.name, (lo - 90.0, hi - 90.0))
             elif f.name == "max_conventional_time_s":
                 if not (isinstance(v, (int, float)) and 0.0 < v <= 3600.0):
                     raise ValueError(f"RigFamily.{f.name} = {v!r} must be in (0, 3600] s")
@@ -175,8 +192,19 @@ class RigFamily:
                                                         else 0.0))
         # the extremes must make valid rigs
         for pick in (0, 1):
-            u = np.full(len(_DRAWS), float(pick))
+            u = np.full(self._n_draws, float(pick))
             apply_changes(RigParams(), self._changes(u, RigParams()))
+
+    @property
+    def draws_cylinders(self) -> bool:
+        """Whether draws change the cylinder's design or mounting angle."""
+        return self.p_single_rod > 0.0 or self.p_inclined > 0.0
+
+    @property
+    def _n_draws(self) -> int:
+        """Uniforms per rig: the cylinder's only when drawn, so that the default family's
+        streams are those it always had."""
+        return len(_DRAWS) + (len(_CYLINDER_DRAWS) if self.draws_cylinders else 0)
 
     def _draw(self, name: str, u: float) -> float:
         lo, hi = getattr(self, name)
@@ -185,7 +213,7 @@ class RigFamily:
         return lo + (hi - lo) * u
 
     def _changes(self, u: np.ndarray, base: RigParams) -> tuple[Change, ...]:
-        d = dict(zip(_DRAWS, u))
+        d = dict(zip(_DRAWS + _CYLINDER_DRAWS, u))
         c, v = base.cylinder, base.valve
         fs = self._draw("static_friction_n", d["fs"])
         leak = d["p_leak"] < self.p_leak
@@ -212,6 +240,12 @@ class RigFamily:
             "effects.heat_transfer_time_constant_s": (
                 self._draw("heat_transfer_time_constant_s", d["tau"]) if heat else 0.0),
         }
+        if self.draws_cylinders:
+            single = d["p_single"] < self.p_single_rod
+            changes["cylinder.design"] = "single-rod" if single else c.design
+            changes["cylinder.mounting_angle_deg"] = (
+                self._draw("mounting_angle_deg", d["angle"]) if d["p_incl"] < self.p_inclined
+                else c.mounting_angle_deg)
         return tuple(sorted(changes.items()))
 
     def outside(self, rig: RigParams, base: RigParams | None = None) -> list[str]:
@@ -240,14 +274,25 @@ class RigFamily:
             ("effects.leak_drive_area_m2", rig.effects.leak_drive_area_m2,
              (0.0, self.leak_area_m2[1])),
         )
+        if self.p_inclined > 0.0:
+            (lo, hi), a0 = self.mounting_angle_deg, base.cylinder.mounting_angle_deg
+            checks += (("cylinder.mounting_angle_deg", c.mounting_angle_deg,
+                        (min(lo, a0), max(hi, a0))),)
+        elif c.mounting_angle_deg != base.cylinder.mounting_angle_deg:
+            checks += (("cylinder.mounting_angle_deg", c.mounting_angle_deg,
+                        (base.cylinder.mounting_angle_deg,) * 2),)
         tol = 1e-9
-        return [f"{name} {val:.4g} not in [{lo:.4g}, {hi:.4g}]" for name, val, (lo, hi) in checks
-                if not lo * (1 - tol) <= val <= hi * (1 + tol)]
+        out = [f"{name} {val:.4g} not in [{lo:.4g}, {hi:.4g}]" for name, val, (lo, hi) in checks
+               if not lo - tol * abs(lo) <= val <= hi + tol * abs(hi)]
+        if c.design != base.cylinder.design and self.p_single_rod == 0.0:
+            out.append(f"cylinder.design {c.design} not drawn (the family draws "
+                       f"{base.cylinder.design} only)")
+        return out
 
     def sample(self, rng: np.random.Generator, base: RigParams | None = None
                ) -> tuple[Change, ...]:
         """One rig's changes to ``base`` (default the thesis rig), from a fixed number of draws."""
-        return self._changes(rng.random(len(_DRAWS)), base or RigParams())
+        return self._changes(rng.random(self._n_draws), base or RigParams())
 
     def with_(self, **changes: Any) -> "RigFamily":
         names = [f.name for f in fields(self)]
@@ -264,5 +309,7 @@ class RigFamily:
 #: the uniforms one rig draws, in order (adding one at the end keeps earlier streams)
 _DRAWS = ("v0", "port", "cl", "cfd", "cfe", "ramp", "len", "dia", "p_lumped", "valve", "exh",
           "delay", "p_iso", "fs", "fc", "kv", "p_leak", "leak", "p_heat", "tau")
+#: the uniforms of the cylinder's design and mounting, drawn after those (only when on)
+_CYLINDER_DRAWS = ("p_single", "angle", "p_incl")
 
 __all__ = ["RigFamily", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]
