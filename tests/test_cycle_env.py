@@ -33,6 +33,19 @@ def test_the_cycle_env_passes_gymnasiums_checker_and_is_registered():
     assert made.spec.max_episode_steps == 1600
 
 
+def test_sb3_trains_on_the_cycle_env():
+    """SB3's own checker passes, and PPO takes a few steps through whole cycles."""
+    import stable_baselines3
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    sb3_check(CutOffCycleEnv(rig=RIG), warn=True)
+    model = stable_baselines3.PPO("MlpPolicy", CutOffCycleEnv(rig=RIG), n_steps=64,
+                                  batch_size=64, n_epochs=1, seed=0)
+    model.learn(total_timesteps=128)
+    assert model.num_timesteps == 128
+
+
+@pytest.mark.filterwarnings("ignore:.*registered TimeLimit")
 def test_the_cycle_env_reproduces_the_plants_cycle():
     """Cut each stroke at the same times as :func:`pneugym.cycle.run_cycle`: the same strokes,
     savings, air and cycle time (to the substeps' landing on control periods, 1e-3)."""
