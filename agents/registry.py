@@ -95,7 +95,7 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
     import warnings
 
     from pneugym.envs.conditions import PRESETS
-    from pneugym.envs.family import FAMILY_FIELDS, apply_changes
+    from pneugym.envs.family import apply_changes
     from pneugym.rigfile import describe_difference, rig_fields
 
     trained = trained_rig(policy, run)
@@ -109,7 +109,7 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
     outside: list[str] = []
     if family is not None:  # the family's own fields may differ, within its ranges
         mine = rig_fields(here)
-        trained = apply_changes(trained, tuple((k, mine[k]) for k in FAMILY_FIELDS))
+        trained = apply_changes(trained, tuple((k, mine[k]) for k in family.fields))
         outside = family.outside(here, trained)
     diff = describe_difference(trained.with_(**point), here)
     if diff or outside:

@@ -23,7 +23,7 @@ Where each value comes from (``S`` a source of :data:`SOURCES`, ``E`` an estimat
   side) [E: fitted to the estimated ranges of the research note, cushion bore and port channel:
   about 4 cm³ at 32 mm, 12 cm³ at 50 mm, 36 cm³ at 80 mm].
 - **Moving mass** (piston and rod, without the payload): a steel rod of ``40 mm + 1.5 x bore``
-  plus the stroke, and an aluminium piston ``0.2 x bore + 10 mm`` thick [E: gives 68 g for the
+  plus the stroke, and an aluminium piston ``0.2 x bore + 10 mm`` thick [E: gives 64.5 g for the
   25 mm cylinder at 0 mm stroke, the datasheet's 63.6 g, S8; 6.2 g per 10 mm against its 6 g].
 - **Friction**: breakaway at 0.31 bar on the cap face for ISO 15552 (the thesis's measured
   Fs = 359 N on its 125 mm SMC C92 ISO cylinder, thesis 5.6) and 0.5 bar for ISO 6432 (the

@@ -100,7 +100,11 @@ def test_a_stalled_extension_ends_the_cycle():
     ret, info, term = play(CutOffCycleEnv(rig=RIG), 0.3, None)
     assert term and info["extend"]["stalled"] and info["retract"] is None
     assert info["cycle_time_s"] is None and not info["cycle_completed"]
-    assert ret == pytest.approx(info["objective"]) and info["objective"] < -2.0
+    assert info["saving_ratio"] is None  # no saving is claimed for a cycle not made
+    # the retraction that never ran: all its air wasted and the stall penalty
+    assert info["objective"] == info["extend"]["objective"] - 3.0
+    assert ret == pytest.approx(info["objective"], abs=1e-12)
+    assert "energy_wasted_j" not in info and "stalled" not in info  # per stroke only
     with pytest.raises(RuntimeError, match="reset"):
         CutOffCycleEnv(rig=RIG).step(0)
 
@@ -137,3 +141,26 @@ def test_a_lone_retract_stroke_of_the_double_rod_rig_is_its_extension():
 def test_bad_cycle_options_are_refused(kw, match):
     with pytest.raises(ValueError, match=match):
         CutOffCycleEnv(**kw)
+
+
+def test_the_cycle_time_is_the_simulated_time():
+    """With no dwell and a cut at the arrival, a stroke ends when its valve has closed: the
+    cycle's time counts that, not only the arrivals."""
+    env = CutOffCycleEnv(rig=RIG, dwell_s=0.0)
+    obs, info = env.reset(seed=0)
+    done = False
+    while not done:
+        obs, _, term, trunc, info = env.step(int(info["position_m"] >= RIG.cylinder.stroke_m))
+        done = term or trunc
+    e, r = info["extend"], info["retract"]
+    assert e["end_time_s"] > e["stroke_time_s"] + 0.15  # the valve's delay after the cut
+    assert info["cycle_time_s"] == e["end_time_s"] + r["end_time_s"]
+    assert info["cycle_time_s"] > e["stroke_time_s"] + r["stroke_time_s"] + 0.3
+
+
+def test_a_retraction_that_cannot_complete_is_refused_at_reset():
+    from pneugym.presets import cylinder_rig
+
+    env = CutOffCycleEnv(rig=cylinder_rig(8, 300, load_kg=20.0, mounting_angle_deg=-90.0))
+    with pytest.raises(ValueError, match="retract stroke"):
+        env.reset(seed=0)

@@ -312,3 +312,18 @@ def test_the_cylinders_suite_holds_out_single_rod_and_inclined_rigs():
     cells = suite_cells("cylinders")
     assert len(cells) == CYLINDER_HELD_OUT * len(TRANSFER_POINTS)
     assert cells[0][0] == "cyl-1/1.5bar-5kg"
+
+
+def test_a_cylinders_family_model_does_not_warn_inside_its_family():
+    from agents.registry import RigMismatchWarning, check_rig
+
+    class Pol:
+        source, trained_rig, trained_preset = "m", None, "family-cylinders"
+
+    space = PRESETS["family-cylinders"]
+    draw = next(c for c in (space.sample(np.random.default_rng([5, i])) for i in range(20))
+                if dict(c.rig_changes)["cylinder.mounting_angle_deg"] != 0.0)
+    env = CutOffVectorEnv(num_envs=1, rig=draw.rig())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RigMismatchWarning)
+        check_rig(Pol(), None, env)

@@ -21,7 +21,11 @@ does not arrive (a stall or the time limit) ends the cycle there.
 retraction's first state and the extension's figures under ``extend``. At the end: ``extend`` and ``retract`` (each stroke's final info, as ``CutOffEnv``'s),
 and for the cycle ``cycle_time_s`` (strokes and dwells; None unless both arrived),
 ``air_mass_kg``, ``free_air_nl``, ``compressor_kwh`` (:mod:`pneugym.units`), ``saving_ratio``
-(both strokes' wasted energy against both conventional strokes') and ``objective``.
+(both strokes' wasted energy against both conventional strokes'; None, as ``cycle_time_s``,
+unless both strokes arrived) and ``objective`` (a retraction that never ran counts as all its
+air wasted plus the stall penalty, ``-(1 + w_stall)``), ``cycle_completed``. Each stroke's own
+figures are under ``extend`` and ``retract`` only. Both strokes replay the conditions' supply
+dip from their own command.
 """
 from __future__ import annotations
 
@@ -38,11 +42,17 @@ from ..physics.energy import saving_ratio
 from ..plant import SimulationError
 from ..units import compressor_energy_kwh, free_air_nl
 from .conditions import as_conditions
-from .cutoff import _DEFAULTS, OBS_BOUND, CutOffEnv, check_action, check_options
+from .cutoff import (
+    _DEFAULTS, OBS_BOUND, CutOffEnv, check_action, check_options, conventional_figures,
+)
 
 #: The chamber state each side keeps across the reversal: (extension's index, retraction's).
 CARRIED = ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD),
            (L.Y_SD, L.Y_SE), (L.Y_SE, L.Y_SD))
+#: the per-step keys a cycle's final info keeps at its top level (the strokes' own figures
+#: are under ``extend`` and ``retract``)
+STEP_KEYS = ("time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut", "measured_x_m",
+             "measured_p_drive_pa", "measured_p_exhaust_pa", "stroke")
 CYCLE_MAX_STEPS = 1600  # max_episode_steps of pneugym/CutOffCycle-v0 (two strokes of 4 s)
 
 
@@ -96,6 +106,12 @@ class CutOffCycleEnv(gym.Env):
         if cond is None:
             cond = ext.space.sample(self.np_random, ext.rig)
         self._cond = as_conditions(cond, "options['conditions']")
+        ret = self.strokes[1]
+        try:  # the retraction must be feasible too: say so now, not after the extension
+            conventional_figures(self._cond.rig(ret.rig), self._cond.dip,
+                                 period_s=ret.control_period_s)
+        except ValueError as exc:
+            raise ValueError(f"the retract stroke of this cycle: {exc}") from None
         self._seeds = [int(s) for s in self.np_random.integers(0, 2**31 - 1, size=2)]
         obs, info = ext.reset(seed=self._seeds[0], options={"conditions": self._cond})
         self._phase, self._finals = 0, []
@@ -121,8 +137,11 @@ class CutOffCycleEnv(gym.Env):
         self._phase = 2
         if info["completed"]:
             self._dwell(phase)
-        info.update(self._cycle_info())
-        return self._obs(obs, phase), r, bool(term), bool(trunc), info
+        final = {k: info[k] for k in STEP_KEYS if k in info}
+        final.update(self._cycle_info())
+        r += final["objective"] - self._finals[0]["objective"] - (
+            self._finals[1]["objective"] if len(self._finals) > 1 else 0.0)
+        return self._obs(obs, phase), r, bool(term), bool(trunc), final
 
     # -- the reversal ----------------------------------------------------------------------
     def _dwell(self, phase: int) -> None:
@@ -138,7 +157,8 @@ class CutOffCycleEnv(gym.Env):
                 raise SimulationError(f"the dwell after the {env.rig.stroke_direction} stroke "
                                       f"went non-physical (status {st})")
         mass = float(y[env._b + L.Y_MIN])
-        self._finals[phase].update(air_mass_kg=mass, free_air_nl=free_air_nl(mass))
+        self._finals[phase].update(air_mass_kg=mass, free_air_nl=free_air_nl(mass),
+                                   end_time_s=float(d[L.D_T]))
 
     def _begin_retraction(self) -> tuple[np.ndarray, dict[str, Any]]:
         """Start the retraction from the extension's chambers (line vented, piston at the end):
@@ -161,13 +181,16 @@ class CutOffCycleEnv(gym.Env):
         mass = ext["air_mass_kg"] + (ret["air_mass_kg"] if ret else 0.0)
         ew = ext["energy_wasted_j"] + (ret["energy_wasted_j"] if ret else 0.0)
         ec = ext["energy_conventional_j"] + (ret["energy_conventional_j"] if ret else 0.0)
+        # a retraction that never ran: all its air wasted, and the stall penalty
+        missed = 0.0 if ret is not None else -(1.0 + self.strokes[1].weights["w_stall"])
         return {
             "extend": ext, "retract": ret,
-            "cycle_time_s": (ext["stroke_time_s"] + ret["stroke_time_s"] + 2 * self.dwell_s)
-            if done else None,
+            # from the extend command to the end of the last dwell, as simulated (a stroke
+            # cut off at its arrival ends when its valve has closed, after the dwell if later)
+            "cycle_time_s": ext["end_time_s"] + ret["end_time_s"] if done else None,
             "air_mass_kg": mass, "free_air_nl": free_air_nl(mass),
             "compressor_kwh": compressor_energy_kwh(mass),
-            "saving_ratio": float(saving_ratio(ec, ew)),
-            "objective": ext["objective"] + (ret["objective"] if ret else 0.0),
+            "saving_ratio": float(saving_ratio(ec, ew)) if done else None,
+            "objective": ext["objective"] + (ret["objective"] if ret else missed),
             "cycle_completed": bool(done),
         }

@@ -196,6 +196,13 @@ class RigFamily:
             apply_changes(RigParams(), self._changes(u, RigParams()))
 
     @property
+    def fields(self) -> tuple[str, ...]:
+        """The rig fields this family's draws set (dotted): :data:`FAMILY_FIELDS`, and the
+        cylinder's design and mounting angle when it draws them."""
+        extra = ("cylinder.design", "cylinder.mounting_angle_deg") if self.draws_cylinders else ()
+        return FAMILY_FIELDS + extra
+
+    @property
     def draws_cylinders(self) -> bool:
         """Whether draws change the cylinder's design or mounting angle."""
         return self.p_single_rod > 0.0 or self.p_inclined > 0.0
