@@ -24,6 +24,19 @@ from .plant import Plant
 from .units import compressor_energy_kwh, free_air_nl
 
 CHUNK_S = 0.005  # the stroke is advanced in steps of this length until it arrives [s]
+#: The chamber state each side keeps across the reversal: (extension's index, retraction's).
+CARRIED = ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD),
+           (L.Y_SD, L.Y_SE), (L.Y_SE, L.Y_SD))
+
+
+def check_cycle_rig(rig: RigParams) -> None:
+    """Refuse effects bound to the driving side of one stroke: a cycle swaps the sides."""
+    e = rig.effects
+    if e.dead_volume_m3 or e.leak_drive_area_m2:
+        raise ValueError("effects.dead_volume_m3 and effects.leak_drive_area_m2 belong to the "
+                         "driving side of one stroke: a cycle would move them to the other "
+                         "chamber at the reversal; give the dead volumes per side in "
+                         "CylinderParams (dead_volume_m3, dead_volume_rod_m3) instead")
 
 
 @dataclass(frozen=True)
@@ -103,12 +116,7 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
     arrive within ``t_max_s`` [s] ends the cycle there (``cycle_time_s`` None)."""
     for name, v in (("cut_extend_s", cut_extend_s), ("cut_retract_s", cut_retract_s)):
         _check(name, v)
-    e = rig.effects
-    if e.dead_volume_m3 or e.leak_drive_area_m2:
-        raise ValueError("effects.dead_volume_m3 and effects.leak_drive_area_m2 belong to the "
-                         "driving side of one stroke: a cycle would move them to the other "
-                         "chamber at the reversal; give the dead volumes per side in "
-                         "CylinderParams (dead_volume_m3, dead_volume_rod_m3) instead")
+    check_cycle_rig(rig)
     _check("dwell_s", dwell_s, allow_none=False)
     pa = rig.gas.ambient_pressure_pa
     ext = Plant(rig.with_(stroke_direction="extend"))
@@ -123,8 +131,7 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
         travel = 0.0
     ret.reset(p_line_pa=pa, p_drive_pa=rod_p, p_exhaust_pa=cap_p, position_m=travel)
     b_e, b_r = ext._b, ret._b
-    for a, b in ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD),
-                 (L.Y_SD, L.Y_SE), (L.Y_SE, L.Y_SD)):  # each chamber keeps its air and heat
+    for a, b in CARRIED:  # each chamber keeps its air and heat
         ret.y[b_r + b] = ext.y[b_e + a]
     ret._m0 = ret.total_air_mass_kg
     pd_r, pe_r = ret.p_drive_pa, ret.p_exhaust_pa

@@ -251,12 +251,9 @@ PRESETS: dict[str, ConditionSpace] = {
         family=RigFamily()),
     # the family with the cylinders users have: half of the draws single-rod, half inclined
     # (-90 to +90 degrees: lifting or lowering the load as they extend)
-    "family-cylinders": ConditionSpace(
-        supply_pressure_gauge_pa=(150_000.0, 600_000.0), load_mass_kg=(2.0, 40.0),
-        dip_probability=0.5, dip_depth=(0.0, 0.3), dip_duration_s=(0.05, 0.3),
-        dip_start_s=(0.0, 1.0), position_noise_m=(0.0, 3e-5), pressure_noise_pa=(0.0, 400.0),
-        family=RigFamily(p_single_rod=0.5, p_inclined=0.5)),
 }
+PRESETS["family-cylinders"] = PRESETS["family"].with_(
+    family=RigFamily(p_single_rod=0.5, p_inclined=0.5))
 
 
 #: The preset of a rig's own operating point (its supply and load), no disturbance.

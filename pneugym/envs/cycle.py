@@ -19,7 +19,7 @@ does not arrive (a stall or the time limit) ends the cycle there.
 **Info**: the current stroke's state (as ``CutOffEnv``'s, times from its own command) and
 ``stroke`` (``"extend"``, ``"retract"``); the step that ends the extension returns the
 retraction's first state and the extension's figures under ``extend``. At the end: ``extend`` and ``retract`` (each stroke's final info, as ``CutOffEnv``'s),
-and for the cycle ``cycle_time_s`` (strokes and dwells; None unless both arrived),
+and for the cycle ``cycle_time_s`` (the simulated time to the end of the last dwell),
 ``air_mass_kg``, ``free_air_nl``, ``compressor_kwh`` (:mod:`pneugym.units`), ``saving_ratio``
 (both strokes' wasted energy against both conventional strokes'; None, as ``cycle_time_s``,
 unless both strokes arrived) and ``objective`` (a retraction that never ran counts as all its
@@ -40,15 +40,13 @@ from ..physics import layout as L
 from ..physics import system as K
 from ..physics.energy import saving_ratio
 from ..plant import SimulationError
+from ..cycle import CARRIED, check_cycle_rig
 from ..units import compressor_energy_kwh, free_air_nl
 from .conditions import as_conditions
 from .cutoff import (
     _DEFAULTS, OBS_BOUND, CutOffEnv, check_action, check_options, conventional_figures,
 )
 
-#: The chamber state each side keeps across the reversal: (extension's index, retraction's).
-CARRIED = ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD),
-           (L.Y_SD, L.Y_SE), (L.Y_SE, L.Y_SD))
 #: the per-step keys a cycle's final info keeps at its top level (the strokes' own figures
 #: are under ``extend`` and ``retract``)
 STEP_KEYS = ("time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "supply_cut", "measured_x_m",
@@ -75,12 +73,7 @@ class CutOffCycleEnv(gym.Env):
         from ..rigfile import as_rig
 
         rig = as_rig(config.get("rig"), "rig")
-        e = rig.effects
-        if e.dead_volume_m3 or e.leak_drive_area_m2:
-            raise ValueError("effects.dead_volume_m3 and effects.leak_drive_area_m2 belong to "
-                             "the driving side of one stroke; a cycle swaps the sides: give the "
-                             "dead volumes per side in CylinderParams (dead_volume_m3, "
-                             "dead_volume_rod_m3) instead")
+        check_cycle_rig(rig)
         cfg = {**config, "rig": rig}
         self.strokes = (CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="extend")}),
                         CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="retract")}))
