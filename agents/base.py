@@ -74,11 +74,21 @@ def run_first_episodes(env, policy: Policy, conditions: Sequence[Any], seed: int
     while not done.all():
         act, state = policy.predict(obs, state)
         obs, _, term, trunc, info = env.step(act)
-        if "final_info" in info:
-            fi = info["final_info"]
-            for i in np.flatnonzero(info["_final_info"] & ~done):
-                for key, val in fi.items():
-                    if not key.startswith("_"):
-                        out.setdefault(key, [None] * n)[i] = val[i]
-                done[i] = True
+        collect_finals(info, done, out)
     return {k: np.array(v) for k, v in out.items()}
+
+
+def collect_finals(info: dict[str, Any], done: np.ndarray, out: dict[str, list]) -> np.ndarray:
+    """Copy the final figures of the sub-environments that just finished (a vector env step's
+    ``info``) into ``out`` (one list per key, one entry per sub-environment) and mark them
+    ``done``; returns their indices."""
+    if "final_info" not in info:
+        return np.zeros(0, dtype=np.int64)
+    fi = info["final_info"]
+    new = np.flatnonzero(info["_final_info"] & ~done)
+    for i in new:
+        for key, val in fi.items():
+            if not key.startswith("_"):
+                out.setdefault(key, [None] * done.size)[i] = val[i]
+        done[i] = True
+    return new

@@ -81,7 +81,9 @@ class GasLawPolicy(Policy):
     set-point, held constant outside), or an array with one K per observation row; default: the
     calibrated table. ``pressure``: ``"gauge"`` or ``"absolute"`` for ``P`` and ``P_st``
     (the thesis does not say). ``volume``: ``"chamber"`` (dead volume included) or ``"position"``
-    (``x_end / x``, as in the thesis's appendix code)."""
+    (``x_end / x``, as in the thesis's appendix code). ``k_scale`` (a number, or one per
+    observation row) multiplies K: what an adaptive controller tunes
+    (:class:`agents.adaptive.AdaptiveGasLaw`)."""
 
     name = "gaslaw"
 
@@ -97,6 +99,7 @@ class GasLawPolicy(Policy):
             raise ValueError(f"n = {n!r} must be > 0")
         self.rig = rig or RigParams()
         self.n, self.pressure, self.volume = float(n), pressure, volume
+        self.k_scale: float | np.ndarray = 1.0
         if k is None:
             k = load_calibration()
         if isinstance(k, Mapping):
@@ -143,10 +146,10 @@ class GasLawPolicy(Policy):
         return cls(u.observation_layout(), **{"rig": u.rig, **kwargs})
 
     def k_for(self, supply_gauge_pa: np.ndarray) -> np.ndarray:
-        """K for each supply set-point [Pa gauge]."""
+        """K for each supply set-point [Pa gauge] (times ``k_scale``)."""
         if self._k_bar is None:
-            return np.broadcast_to(self.k, supply_gauge_pa.shape)
-        return np.interp(supply_gauge_pa / 1e5, self._k_bar, self._k_val)
+            return np.broadcast_to(self.k, supply_gauge_pa.shape) * self.k_scale
+        return np.interp(supply_gauge_pa / 1e5, self._k_bar, self._k_val) * self.k_scale
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         x = np.clip(self.read(obs, "position"), 0.0, self._stroke)

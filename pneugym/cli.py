@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("pneugym.deploy.replay",
                "run a controller over measured runs: when it would cut, what that saves"),
     "export": ("pneugym.deploy.export", "export a neural policy to ONNX and a numpy runtime"),
+    "operate": ("pneugym.operation.__main__",
+                "run a rig's operating life (drift, every stroke in DuckDB, adaptation) and report"),
 }
 
 

@@ -53,7 +53,8 @@ def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128)):
 def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = (128, 128, 128),
         epochs: int = 60, batch_size: int = 256, lr: float = 2e-3, weight_decay: float = 1e-5,
         val_fraction: float = 0.1, seed: int = 0, patience: int = 15, time_loss: str = "mse",
-        groups: np.ndarray | None = None, progress: bool = True) -> tuple[Any, dict[str, Any]]:
+        groups: np.ndarray | None = None, progress: bool = True, init: Any = None
+        ) -> tuple[Any, dict[str, Any]]:
     """Train the predictor on ``x`` (B, n_in), targets ``y`` and ``mask`` of
     :func:`~agents.esac.data.targets`: binary cross-entropy on the class heads, mean squared
     error on the standardised regression heads (masked), AdamW with a one-cycle learning rate;
@@ -61,7 +62,9 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     ``val_fraction`` of the ``groups`` (episode of each row; default: each row its own), so that
     no episode is on both sides. ``time_loss="l1"`` fits the time ratio's conditional median
     instead of its mean: sharper at the knee where a later cut stops lengthening the stroke (the
-    mean smooths it into a bias). Returns the network and the loss history."""
+    mean smooths it into a bias). ``init``: a trained network to fine-tune (a copy is trained; its
+    input and output normalisation are kept, so that its units stay those it was trained in).
+    Returns the network and the loss history."""
     if time_loss not in ("mse", "l1"):
         raise ValueError(f"time_loss = {time_loss!r}: choose 'mse' or 'l1'")
     from tqdm import tqdm
@@ -76,34 +79,33 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     nv = max(1, int(round(val_fraction * uniq.size)))
     is_val = np.isin(g, uniq[:nv])
     vi, ti = np.flatnonzero(is_val), rng.permutation(np.flatnonzero(~is_val))
-    net = make_net(x.shape[1], hidden)
     xt = torch.as_tensor(x, dtype=torch.float32)
     yt = torch.as_tensor(y, dtype=torch.float32)
     mt = torch.as_tensor(mask, dtype=torch.float32)
-    with torch.no_grad():
-        net.in_mean[:] = xt[ti].mean(0)
-        net.in_std[:] = xt[ti].std(0).clamp_min(1e-6)
-        yr, mr = yt[ti, nc:], mt[ti, nc:]
-        mean = (yr * mr).sum(0) / mr.sum(0).clamp_min(1.0)
-        var = (((yr - mean) * mr) ** 2).sum(0) / mr.sum(0).clamp_min(1.0)
-        net.out_mean[:] = mean
-        net.out_std[:] = var.sqrt().clamp_min(1e-6)
+    if init is not None:
+        import copy
+
+        net = copy.deepcopy(init)
+        if int(net.in_mean.shape[0]) != x.shape[1]:
+            raise ValueError(f"init takes {int(net.in_mean.shape[0])} inputs, the samples have "
+                             f"{x.shape[1]}")
+    else:
+        net = make_net(x.shape[1], hidden)
+        with torch.no_grad():
+            net.in_mean[:] = xt[ti].mean(0)
+            net.in_std[:] = xt[ti].std(0).clamp_min(1e-6)
+            yr, mr = yt[ti, nc:], mt[ti, nc:]
+            mean = (yr * mr).sum(0) / mr.sum(0).clamp_min(1.0)
+            var = (((yr - mean) * mr) ** 2).sum(0) / mr.sum(0).clamp_min(1.0)
+            net.out_mean[:] = mean
+            net.out_std[:] = var.sqrt().clamp_min(1e-6)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
     steps = epochs * max(1, math.ceil(ti.size / batch_size))
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps,
                                                 pct_start=0.1)
 
     def loss_of(rows):
-        out = net(xt[rows])
-        bce = torch.nn.functional.binary_cross_entropy_with_logits(out[:, :nc], yt[rows, :nc])
-        z = (yt[rows, nc:] - net.out_mean) / net.out_std
-        m = mt[rows, nc:]
-        err = (out[:, nc:] - z) ** 2
-        if time_loss == "l1":
-            k = REG_HEADS.index("log_time_ratio")
-            err = torch.cat([err[:, :k], (out[:, nc + k:nc + k + 1] - z[:, k:k + 1]).abs(),
-                             err[:, k + 1:]], dim=1)
-        return bce + (err * m).sum() / m.sum().clamp_min(1.0)
+        return _loss(net, xt[rows], yt[rows], mt[rows], time_loss)
 
     hist: dict[str, Any] = {"train": [], "val": []}
     best, best_state, stale = math.inf, None, 0
@@ -139,6 +141,34 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     net.eval()
     hist.update(best_val=best, epochs_run=len(hist["val"]), fit_wall_s=time.perf_counter() - t0)
     return net, hist
+
+
+def _loss(net, x, y, m, time_loss: str = "mse"):
+    """The training loss (a torch scalar) of ``net`` on inputs ``x``, targets ``y``, mask ``m``:
+    binary cross-entropy of the class heads plus the masked mean squared error of the
+    standardised regression heads (absolute error on the time ratio with ``time_loss="l1"``)."""
+    torch = _torch()
+    nc = len(CLASS_HEADS)
+    out = net(x)
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(out[:, :nc], y[:, :nc])
+    z = (y[:, nc:] - net.out_mean) / net.out_std
+    mr = m[:, nc:]
+    err = (out[:, nc:] - z) ** 2
+    if time_loss == "l1":
+        k = REG_HEADS.index("log_time_ratio")
+        err = torch.cat([err[:, :k], (out[:, nc + k:nc + k + 1] - z[:, k:k + 1]).abs(),
+                         err[:, k + 1:]], dim=1)
+    return bce + (err * mr).sum() / mr.sum().clamp_min(1.0)
+
+
+def loss(net, x: np.ndarray, y: np.ndarray, mask: np.ndarray, time_loss: str = "mse") -> float:
+    """:func:`fit`'s loss of ``net`` on samples ``x``, ``y``, ``mask`` (e.g. of a held-out
+    record), without training."""
+    torch = _torch()
+    with torch.no_grad():
+        return float(_loss(net, torch.as_tensor(x, dtype=torch.float32),
+                           torch.as_tensor(y, dtype=torch.float32),
+                           torch.as_tensor(mask, dtype=torch.float32), time_loss))
 
 
 class ESACPredictor:

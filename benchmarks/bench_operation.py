@@ -1,0 +1,58 @@
+"""The operating-life figures: every named scenario under frozen and adapting controllers,
+5000 strokes each, one DuckDB record and one report (issue 14's table).
+
+    python benchmarks/bench_operation.py --runs runs --out benchmarks/results/operation
+    python benchmarks/bench_operation.py --strokes 1000 --scenarios wear,leak-onset
+
+Needs a trained ESAC run (``pneugym train --algo esac --out runs/esac``, or the main job's).
+About 35 minutes on 2 cores for the controllers, and 35 more for the condition monitoring
+(the discrepancy workflow at 60 checkpoints, 30-40 s each).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pneugym.operation.report import write_report  # noqa: E402
+from pneugym.operation.run import operate  # noqa: E402
+from pneugym.operation.scenarios import SCENARIOS  # noqa: E402
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", default="runs", help="where the trained esac run is")
+    p.add_argument("--out", default="benchmarks/results/operation")
+    p.add_argument("--strokes", type=int, default=5000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scenarios", default=",".join(SCENARIOS))
+    p.add_argument("--controllers", default="gaslaw,gaslaw-adaptive,esac=RUNS/esac,"
+                                            "esac-adaptive=RUNS/esac")
+    p.add_argument("--monitor", default="healthy:500,wear:500,shift:500,leak-onset:250,"
+                                        "load-change:500",
+                   help="SCENARIO:EVERY pairs: condition monitoring of the frozen Gas-Law run")
+    args = p.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    db = out / "ops.duckdb"
+    ctrls = [c.replace("RUNS", args.runs) for c in args.controllers.split(",")]
+    for sc in args.scenarios.split(","):
+        for c in ctrls:
+            operate(sc, c, strokes=args.strokes, db=db, seed=args.seed)
+    from pneugym.operation.monitor import alarm, monitor
+
+    for item in filter(None, args.monitor.split(",")):
+        sc, every = item.split(":")
+        if sc in args.scenarios.split(","):
+            pts = monitor(str(db), f"{sc}/seed{args.seed}/gaslaw", every=int(every))
+            print(f"monitor {sc}: {alarm(pts)}", flush=True)
+    res = write_report(db, out)
+    for rid, s in res["runs"].items():
+        print(f"{rid:60s} oracle fraction {s['oracle_fraction']:.3f}  stalls {s['stalls']}  "
+              f"stick {s['stick_slip_strokes']}  recovery {s['recovery']}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,266 @@
+"""The operating loop: consecutive strokes of one drifting rig under one controller, each stroke
+recorded (:func:`operate`).
+
+Strokes run in blocks of ``block`` through the batched environment (the drift is a function of
+the stroke number, so a block's strokes are independent of each other; a controller learns
+between blocks). Before a block the controller may adapt from the record; after it the block's
+measured outcome updates it, and the block, its sensor traces and the controller's checkpoint
+are written in one transaction. Beside the controller's strokes the loop records the truth of
+each stroke with what a conventional controller and the drift-aware oracle (the best single cut
+under the true conditions, :class:`agents.oracle.OraclePolicy`) do under it, once per drift step.
+"""
+from __future__ import annotations
+
+import datetime
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .record import Record
+from .scenarios import Scenario, scenario as get_scenario
+
+#: the operating environment's options (as every evaluation: the rig's datasheet values observed,
+#: single samples; learned policies stack their own history)
+ENV_CONFIG: dict[str, Any] = {"observe_rig": True}
+
+
+def run_id_of(scenario: str, seed: int, controller: str) -> str:
+    """The id of a run in the record."""
+    return f"{scenario}/seed{seed}/{controller}"
+
+
+class _Stepper:
+    """Runs one block of strokes under a policy and records what the controller saw: the sensor
+    samples of every step and, for controllers that learn from them, the observations at the
+    cut and :data:`agents.esac.LAGS` control periods before it (in the model's layout)."""
+
+    def __init__(self, policy: Any, keep: np.ndarray, inputs: bool, lags: tuple[int, ...]):
+        self.policy, self.keep, self.inputs = policy, keep, inputs
+        self.lags = np.asarray(lags, dtype=np.int64)
+        self.k = 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        if self.inputs:
+            m = self.policy.model_obs(obs)
+            a = np.asarray(self.policy.act_model(m), dtype=np.int64)
+            depth = int(self.lags[-1]) + 1
+            if self.k == 0:
+                self.ring = np.full((depth,) + m.shape, np.nan, dtype=np.float32)
+                self.at_cut = np.full((m.shape[0], self.lags.size, m.shape[1]), np.nan,
+                                      dtype=np.float32)
+                self.cut_seen = np.zeros(m.shape[0], dtype=bool)
+            self.ring[self.k % depth] = m
+        else:
+            a = np.asarray(self.policy.act(obs), dtype=np.int64)
+        a = np.where(self.keep, 0, a)
+        if self.inputs:
+            new = np.flatnonzero((a == 1) & ~self.cut_seen)
+            for j, lag in enumerate(self.lags):
+                if self.k - lag >= 0:
+                    self.at_cut[new, j] = self.ring[(self.k - lag) % depth, new]
+            self.cut_seen[new] = True
+        self.k += 1
+        return a
+
+
+def dwell(env: Any, i: int, dwell_s: float, noise: tuple[float, float],
+          rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """After stroke ``i`` of ``env`` ended (at its arrival, or stalled), hold its valve command
+    for ``dwell_s`` [s] at the control rate, as the cylinder rests at the end before its return,
+    and return the sensor samples (``noise``: position [m] and pressure [Pa] standard
+    deviations). The trapped air's decay is where a leak shows most clearly."""
+    from pneugym.envs import episode as EP
+    from pneugym.physics import layout as L
+    from pneugym.physics import system as K
+
+    y, P, d, b = env.Y[i], env.P[i], env.D[i], env._b
+    period = float(env.control_period_s)
+    valve = 0 if env.E[i, EP.E_CUT] > 0.0 else 1
+    out: dict[str, list] = {k: [] for k in ("t", "x", "p_drive", "p_exhaust", "valve")}
+    t_end = float(d[L.D_T]) + dwell_s
+    while True:  # the sample at the stroke's end (the last step's state), then one per period
+        z = rng.standard_normal(3) * (noise[0], noise[1], noise[1])
+        out["t"].append(float(d[L.D_T]))
+        out["x"].append(float(y[b + L.Y_X]) + z[0])
+        out["p_drive"].append(float(y[b + L.Y_SD]) + z[1])
+        out["p_exhaust"].append(float(y[b + L.Y_SE]) + z[2])
+        out["valve"].append(valve)
+        if float(d[L.D_T]) >= t_end - 1e-9:
+            break
+        if K.command_advance(y, P, d, env._W[i], -1.0, period, False) != L.STATUS_OK:
+            break  # a rest that cannot be stepped ends the record (never seen on the rigs here)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, inputs: bool,
+              lags: tuple[int, ...] = (0,), dwell_s: float = 0.0
+              ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], list]:
+    """One block: every stroke of ``conds`` under ``policy`` (rows ``keep`` never cut), each
+    followed by a rest of ``dwell_s`` at the end (:func:`dwell`). Returns the final figures, the
+    sensor traces (``row``, ``t``, ``x``, ``p_drive``, ``p_exhaust`` absolute, ``valve``) and
+    each row's decision inputs (float32 bytes, or None)."""
+    from agents.base import ObservationReader, collect_finals
+
+    n = env.num_envs
+    read = ObservationReader(env.observation_layout())
+    pa = float(env.rig.gas.ambient_pressure_pa)
+    step = _Stepper(policy, keep, inputs, lags)
+    obs, _ = env.reset(seed=seed, options={"conditions": list(conds)})
+    policy.begin_episodes(list(conds))
+    done = np.zeros(n, dtype=bool)
+    out: dict[str, list] = {}
+    tr: dict[str, list] = {k: [] for k in ("row", "t", "x", "p_drive", "p_exhaust", "valve")}
+    while not done.all():
+        a = step.act(obs)
+        live = np.flatnonzero(~done)
+        tr["row"].append(live)
+        tr["t"].append(read(obs, "time")[live])
+        tr["x"].append(read(obs, "position")[live])
+        tr["p_drive"].append(read(obs, "p_drive")[live] + pa)
+        tr["p_exhaust"].append(read(obs, "p_exhaust")[live] + pa)
+        tr["valve"].append(1 - a[live])
+        obs, _, _, _, info = env.step(a)
+        for i in collect_finals(info, done, out):
+            if dwell_s > 0:
+                c = conds[i]
+                rest = dwell(env, int(i), dwell_s, (c.position_noise_m, c.pressure_noise_pa),
+                             np.random.default_rng([seed, int(i)]))
+                tr["row"].append(np.full(rest["t"].size, i))
+                for k, v in rest.items():
+                    tr[k].append(v)
+    traces = {k: np.concatenate(v) for k, v in tr.items()}
+    order = np.lexsort((traces["t"], traces["row"]))
+    traces = {k: v[order] for k, v in traces.items()}
+    dec = [None] * n
+    if inputs:
+        dec = [step.at_cut[i].tobytes() if step.cut_seen[i] else None for i in range(n)]
+    return {k: np.array(v, dtype=object) for k, v in out.items()}, traces, dec
+
+
+def references(oracle: Any, conds: list) -> dict[str, np.ndarray]:
+    """What a conventional controller and the oracle do under each of ``conds`` (noise-free;
+    one plan and one batched run per distinct condition)."""
+    from agents.base import run_first_episodes
+    from agents.oracle import TimedCutPolicy
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    clean = [type(c)(**{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
+             for c in conds]
+    keys = list(dict.fromkeys(c.physics_key() for c in clean))
+    first = {c.physics_key(): c for c in reversed(clean)}
+    uniq = [first[k] for k in keys]
+    plans = oracle.plan_many(uniq)
+    t_cut = np.array([math.inf] * len(uniq) + [t for t, _ in plans])
+    env = CutOffVectorEnv(num_envs=t_cut.size, autoreset=False, **oracle.env_config)
+    fig = run_first_episodes(env, TimedCutPolicy(env.observation_layout(), t_cut), uniq + uniq,
+                             0)
+    m = len(uniq)
+    per_key = {}
+    for j, k in enumerate(keys):
+        per_key[k] = {
+            "conventional_time_s": fig["stroke_time_s"][j], "conventional_energy_j":
+            fig["energy_wasted_j"][j], "conventional_free_air_nl": fig["free_air_nl"][j],
+            "conventional_objective": fig["objective"][j],
+            "oracle_cutoff_time_s": plans[j][0], "oracle_objective": fig["objective"][m + j],
+            "oracle_free_air_nl": fig["free_air_nl"][m + j],
+            "oracle_saving_ratio": fig["saving_ratio"][m + j],
+            "oracle_stroke_time_s": fig["stroke_time_s"][m + j]}
+    rows = [per_key[c.physics_key()] for c in clean]
+    return {k: np.array([np.nan if r[k] is None else float(r[k]) for r in rows])
+            for k in rows[0]}
+
+
+#: the rest at the end of each stroke before its return [s]: the record holds it (the monitor
+#: reads the trapped air's decay there)
+DWELL_S = 0.4
+
+
+def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
+            db: str | Path = "ops.duckdb", seed: int = 0, block: int = 25,
+            progress: bool = True, dwell_s: float = DWELL_S) -> str:
+    """Run ``strokes`` strokes of ``scenario`` under ``controller`` (a spec of
+    :func:`agents.adaptive.make_controller`: ``gaslaw``, ``esac=runs/esac``,
+    ``gaslaw-adaptive``, ``esac-adaptive=runs/esac``, ...), recording every stroke in the DuckDB
+    file ``db``. A run already in ``db`` with the same configuration resumes from its
+    checkpoint (and returns at once if finished). Each stroke's record ends with a rest of
+    ``dwell_s`` at the stroke end (the valve held). Returns the run's id."""
+    from tqdm import tqdm
+
+    from agents.adaptive import make_controller
+    from agents.esac.data import LAGS
+    from agents.oracle import OraclePolicy
+    from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.provenance import provenance
+
+    sc = get_scenario(scenario)
+    if not (isinstance(strokes, int) and strokes >= 1):
+        raise ValueError(f"strokes = {strokes!r} must be an integer >= 1")
+    if not (isinstance(block, int) and 1 <= block <= 1024):
+        raise ValueError(f"block = {block!r} must be an integer in [1, 1024]")
+    if not (isinstance(dwell_s, (int, float)) and 0.0 <= dwell_s <= 10.0):
+        raise ValueError(f"dwell_s = {dwell_s!r} must be in [0, 10] s")
+    probe = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    ctrl = make_controller(controller, probe, seed)
+    ctrl.lag_s = np.asarray(LAGS, dtype=float) * probe.control_period_s
+    run_id = run_id_of(sc.name, seed, controller)
+    config = {"scenario": sc.to_dict(), "seed": seed, "block": block, "env": ENV_CONFIG,
+              "dwell_s": float(dwell_s), "controller": ctrl.config()}
+    oracle = OraclePolicy.for_env(probe)
+    with Record(db) as rec:
+        start, state = rec.start_run(run_id, sc.name, seed, controller, strokes, config,
+                                     provenance(), _now())
+        if state is not None:
+            ctrl.restore(state, rec, run_id)
+        bar = tqdm(total=strokes, initial=min(start, strokes), desc=f"{sc.name} {controller}",
+                   unit="stroke", disable=not progress)
+        env = None
+        for k0 in range(start - start % block, strokes, block):
+            ks = np.arange(k0, min(k0 + block, strokes))
+            models = ctrl.adapt(rec, run_id, int(k0))
+            conds = [sc.conditions(int(k), seed) for k in ks]
+            truth = rec.truth(sc.name, seed, int(ks[0]), int(ks[-1]))
+            if truth["stroke"].size < ks.size:
+                refs = references(oracle, conds)
+                t = [sc.truth(int(k), seed) for k in ks]
+                rec.write_truth(sc.name, seed, {"stroke": ks, **{q: [r[q] for r in t]
+                                                                 for q in t[0]}, **refs})
+            if env is None or env.num_envs != ks.size:
+                env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **ENV_CONFIG)
+            policy, flags = ctrl.plan(ks)
+            fig, traces, dec = run_block(env, policy, conds, flags["reference"],
+                                         seed=int(np.random.default_rng([seed, k0]).integers(
+                                             2**31)), inputs=ctrl.needs_inputs, lags=LAGS,
+                                         dwell_s=float(dwell_s))
+            rows = _stroke_rows(sc, ks, fig, flags, dec, ctrl.version, conds)
+            ctrl.update({k: np.asarray(v) for k, v in rows.items() if k != "decision_inputs"})
+            traces["stroke"] = ks[traces.pop("row")]
+            rec.write_block(run_id, rows, traces, int(ks[-1]) + 1, ctrl.state(), models)
+            bar.update(ks.size)
+        bar.close()
+        rec.finish_run(run_id)
+    return run_id
+
+
+def _stroke_rows(sc: Scenario, ks: np.ndarray, fig: dict, flags: dict, dec: list, version: str,
+                 conds: list) -> dict[str, list]:
+    def col(name: str) -> list:
+        return [None if v is None else v for v in fig[name]]
+
+    return {
+        "stroke": ks.tolist(), "hour": [sc.hour(int(k)) for k in ks],
+        "controller_version": [version] * ks.size,
+        "reference": flags["reference"].tolist(), "explore": flags["explore"].tolist(),
+        "supply_setpoint_pa": [c.supply_pressure_gauge_pa for c in conds],
+        "cutoff_time_s": col("cutoff_time_s"), "completed": col("completed"),
+        "stalled": col("stalled"), "stick_slip_events": col("stick_slip_events"),
+        "stroke_time_s": col("stroke_time_s"), "final_position_m": col("position_m"),
+        "energy_wasted_j": col("energy_wasted_j"), "free_air_nl": col("free_air_nl"),
+        "objective": col("objective"), "saving_ratio": col("saving_ratio"),
+        "decision_inputs": dec,
+    }
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat()
