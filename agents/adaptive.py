@@ -250,7 +250,7 @@ class AdaptiveESAC(Frozen):
     lag_s = np.zeros(1)  # set by the operating loop: the control periods of the recorded lags
 
     def adapt(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
-        if stroke <= 0 or stroke % self.adapt_every or stroke <= self.last_adapt:
+        if stroke - self.last_adapt < self.adapt_every:
             return []
         from .esac.model import fit, loss
 

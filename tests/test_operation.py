@@ -315,3 +315,13 @@ def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
         with pytest.raises(SystemExit) as exc:
             main(["operate", "--scenario", "healthy", "--policy", "gaslaw", *argv])
         assert exc.value.code == 2
+
+
+def test_a_finished_run_extends_to_more_strokes(tmp_path):
+    db = tmp_path / "x.duckdb"
+    rid = operate("healthy", "endstroke", strokes=30, db=db, block=20, progress=False)
+    assert operate("healthy", "endstroke", strokes=30, db=db, block=20, progress=False) == rid
+    operate("healthy", "endstroke", strokes=50, db=db, block=20, progress=False)
+    with Record(db, read_only=True) as rec:
+        assert rec.strokes(rid)["stroke"].tolist() == list(range(50))
+        assert rec.runs()[0]["strokes"] == 50

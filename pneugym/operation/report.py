@@ -135,8 +135,8 @@ def plot(rec: Record, run_ids: list[str], path: str | Path) -> Path:
     for rid in run_ids:
         d = life(rec, rid)
         saved = np.cumsum(d["conventional_free_air_nl"] - d["free_air_nl"]) / 1000
-        ax[0].plot(d["stroke"], saved, label=rec.run(rid)["controller"])
-        ax[1].plot(d["stroke"], rolling_fraction(d), label=rec.run(rid)["controller"])
+        ax[0].plot(d["stroke"], saved, label=_label(rec.run(rid)["controller"]))
+        ax[1].plot(d["stroke"], rolling_fraction(d), label=_label(rec.run(rid)["controller"]))
     if d is not None:
         ax[0].plot(d["stroke"], np.cumsum(d["conventional_free_air_nl"]
                                           - d["oracle_free_air_nl"]) / 1000, "k--",
@@ -168,10 +168,58 @@ def plot(rec: Record, run_ids: list[str], path: str | Path) -> Path:
     return path
 
 
+def plot_hourly(rec: Record, run_ids: list[str], path: str | Path) -> Path:
+    """Per operating hour: saving rate, mean and worst stroke time, stalls and stick-slip
+    strokes, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 2, figsize=(9, 6), sharex=True)
+    for rid in run_ids:
+        rows = per_period(rec, rid, "hour")
+        h = [r["period"] for r in rows]
+        lab = _label(rec.run(rid)["controller"])
+        ax[0, 0].plot(h, [100 * (r["saving_mean"] or 0) for r in rows], "o-", label=lab)
+        line = ax[0, 1].plot(h, [r["stroke_time_mean_s"] for r in rows], "o-", label=lab)
+        ax[0, 1].plot(h, [r["stroke_time_max_s"] for r in rows], ":", color=line[0].get_color())
+        ax[1, 0].plot(h, [r["stalls"] for r in rows], "o-", label=lab)
+        ax[1, 1].plot(h, [r["stick_slip_strokes"] for r in rows], "o-", label=lab)
+    for a, y in zip(ax.flat, ("energy saved [%]", "stroke time, mean and worst [s]",
+                              "stalls per hour", "stick-slip strokes per hour")):
+        a.set_ylabel(y)
+        a.grid(alpha=0.3)
+    for a in ax[1]:
+        a.set_xlabel("operating hour")
+    ax[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _shift_table(rec: Record, ids: list[str]) -> list[str]:
+    """Markdown rows: each run's figures per shift."""
+    lines = ["| controller | shift | strokes | energy saved | mean stroke [s] | worst stroke [s] "
+             "| stalls | stick-slip strokes | air saved [m³] | oracle fraction |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for rid in ids:
+        for r in per_period(rec, rid, "shift"):
+            lines.append(f"| {_label(rec.run(rid)['controller'])} | {r['period'] + 1} | {r['strokes']} | "
+                         f"{100 * (r['saving_mean'] or 0):.1f} % | {_f(r['stroke_time_mean_s'])} "
+                         f"| {_f(r['stroke_time_max_s'])} | {r['stalls']} | "
+                         f"{r['stick_slip_strokes']} | {r['air_saved_nl'] / 1000:.2f} | "
+                         f"{_f(r['oracle_fraction'])} |")
+    return lines
+
+
 def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = None
                  ) -> dict[str, Any]:
-    """``OUT/report.md``, ``OUT/report.json``, ``OUT/<scenario>_seed<seed>.png`` for the runs
-    (default: every run in ``db``). Returns the JSON structure."""
+    """``OUT/report.md``, ``OUT/report.json``, ``OUT/<scenario>_seed<seed>.png`` (air, oracle
+    fraction, drift) and ``..._hourly.png`` (per hour) for the runs (default: every run in
+    ``db``). Returns the JSON structure."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with Record(db, read_only=True) as rec:
@@ -209,23 +257,30 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                 points = checkpoints(rec, rid)
                 if points:
                     s["monitor"] = {"alarm": alarm(points), "checkpoints": points}
-                    monitored.append(f"- {rec.run(rid)['controller']}: {alarm(points)}")
+                    monitored.append(f"- {_label(rec.run(rid)['controller'])}: {alarm(points)}")
                 result["runs"][rid] = s
                 saved = (s["air_conventional_nl"] - s["air_nl"]) / 1000
                 rec_txt = ", ".join(f"{v if v is not None else 'never'}"
                                     for v in s["recovery"].values()) or "-"
-                lines.append(f"| {rec.run(rid)['controller']} | {s['strokes']} | "
+                lines.append(f"| {_label(rec.run(rid)['controller'])} | {s['strokes']} | "
                              f"{_f(s['oracle_fraction'])} | {_f(s['air_fraction'])} | "
                              f"{saved:.2f} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")
             if monitored:
                 lines += ["", "Condition monitoring (the discrepancy workflow on the record):",
                           ""] + monitored
-            lines += ["", f"![{sc}]({png.name})", ""]
+            hourly = plot_hourly(rec, ids, out / f"{sc}_seed{seed}_hourly.png")
+            lines += ["", f"![{sc}]({png.name})", "", "Per shift:", ""] + _shift_table(rec, ids)
+            lines += ["", f"![{sc}, per hour]({hourly.name})", ""]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     (out / "report.json").write_text(json.dumps(result, indent=2, default=_json) + "\n",
                                      encoding="utf-8")
     return result
+
+
+def _label(controller: str) -> str:
+    """A controller's name for tables and plots: its spec without the model's path."""
+    return controller.split("=", 1)[0]
 
 
 def _f(v: Any) -> str:

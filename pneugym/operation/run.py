@@ -216,7 +216,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
         bar = tqdm(total=strokes, initial=min(start, strokes), desc=f"{sc.name} {controller}",
                    unit="stroke", disable=not progress)
         env = None
-        for k0 in range(start - start % block, strokes, block):
+        for k0 in range(start, strokes, block):
             ks = np.arange(k0, min(k0 + block, strokes))
             models = ctrl.adapt(rec, run_id, int(k0))
             conds = [sc.conditions(int(k), seed) for k in ks]
