@@ -4,6 +4,9 @@
     python benchmarks/bench_operation.py --runs runs --out benchmarks/results/operation
     python benchmarks/bench_operation.py --strokes 1000 --scenarios wear,leak-onset
 
+Scenarios are independent: two processes on disjoint ``--scenarios`` with their own ``--out`` give
+the same figures as one (the documented figures were run so, on 2 cores).
+
 Needs a trained ESAC run (``pneugym train --algo esac --out runs/esac``, or the main job's).
 About 35 minutes on 2 cores for the controllers, and 35 more for the condition monitoring
 (the discrepancy workflow at 60 checkpoints, 30-40 s each).

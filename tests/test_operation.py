@@ -14,8 +14,8 @@ from agents.adaptive import AdaptiveGasLaw, make_controller, measured_objective 
 from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: E402
 from pneugym.operation import SCENARIOS, Scenario, scenario  # noqa: E402
 from pneugym.operation.record import Record, export_runs  # noqa: E402
-from pneugym.operation.report import (recovery, step_changes, summary,  # noqa: E402
-                                      write_report)
+from pneugym.operation.report import (life, recovery, step_changes,  # noqa: E402
+                                      summary, write_report)
 from pneugym.operation.run import ENV_CONFIG, operate  # noqa: E402
 
 
@@ -102,6 +102,11 @@ def test_references_bound_the_controllers(gaslaw_life):
     assert conv["air_fraction"] == pytest.approx(0.0, abs=1e-9)
     assert ad["strokes"] == 60 and ad["reference_strokes"] == 1  # stroke 0 runs uncut
     assert ad["oracle_fraction"] < 1.0
+    with Record(db, read_only=True) as rec:
+        d = life(rec, ids["gaslaw-adaptive"])
+    # the air is counted alike (to the end of each stroke's rest): a cut stroke draws less
+    cut = ~d["reference"].astype(bool)
+    assert (d["free_air_nl"][cut] < d["conventional_free_air_nl"][cut]).all()
 
 
 def test_resume_after_an_interruption_gives_the_same_record(gaslaw_life, tmp_path, monkeypatch):

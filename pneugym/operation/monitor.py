@@ -49,19 +49,22 @@ def _pick(strokes: np.ndarray, cut_s: np.ndarray, window: int) -> np.ndarray:
 def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
              load_kg: float) -> dict[str, float]:
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
-    value}``): a conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig."""
-    from agents.base import run_first_episodes
+    value}``): a conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig, each
+    with the operating rest at the stroke end (:data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy
     from pneugym.envs import Conditions
     from pneugym.envs.cutoff import CutOffVectorEnv
 
+    from .run import DWELL_S, run_block
+
     changes = tuple((f"effects.{k}", float(v)) for k, v in effect.items())
     base = Conditions(supply_pressure_gauge_pa=supply_gauge_pa, load_mass_kg=load_kg)
-    conds = [base, base, Conditions(**{**base.to_dict(), "rig_changes": changes})] * 1
-    conds.append(conds[-1])
+    leaky = Conditions(**{**base.to_dict(), "rig_changes": changes})
     env = CutOffVectorEnv(num_envs=4, autoreset=False)
     t = np.array([math.inf, cut_s, math.inf, cut_s])
-    f = run_first_episodes(env, TimedCutPolicy(env.observation_layout(), t), conds, 0)
+    f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t),
+                        [base, base, leaky, leaky], np.zeros(4, dtype=bool), 0, False,
+                        dwell_s=DWELL_S)
     nl = [float(v) for v in f["free_air_nl"]]
     return {"conventional_nl": nl[0], "conventional_with_effect_nl": nl[2],
             "cut_nl": nl[1], "cut_with_effect_nl": nl[3], "cut_s": float(cut_s),

@@ -70,7 +70,9 @@ def dwell(env: Any, i: int, dwell_s: float, noise: tuple[float, float],
     """After stroke ``i`` of ``env`` ended (at its arrival, or stalled), hold its valve command
     for ``dwell_s`` [s] at the control rate, as the cylinder rests at the end before its return,
     and return the sensor samples (``noise``: position [m] and pressure [Pa] standard
-    deviations). The trapped air's decay is where a leak shows most clearly."""
+    deviations) and ``air_mass_kg``, the air drawn from the supply from the extend command to
+    the end of the rest (a supply never cut keeps filling the driving chamber). The trapped
+    air's decay is where a leak shows most clearly."""
     from pneugym.envs import episode as EP
     from pneugym.physics import layout as L
     from pneugym.physics import system as K
@@ -91,7 +93,9 @@ def dwell(env: Any, i: int, dwell_s: float, noise: tuple[float, float],
             break
         if K.command_advance(y, P, d, env._W[i], -1.0, period, False) != L.STATUS_OK:
             break  # a rest that cannot be stepped ends the record (never seen on the rigs here)
-    return {k: np.asarray(v) for k, v in out.items()}
+    rest = {k: np.asarray(v) for k, v in out.items()}
+    rest["air_mass_kg"] = np.asarray(float(y[b + L.Y_MIN]))
+    return rest
 
 
 def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, inputs: bool,
@@ -102,6 +106,7 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     sensor traces (``row``, ``t``, ``x``, ``p_drive``, ``p_exhaust`` absolute, ``valve``) and
     each row's decision inputs (float32 bytes, or None)."""
     from agents.base import ObservationReader, collect_finals
+    from pneugym.units import free_air_nl
 
     n = env.num_envs
     read = ObservationReader(env.observation_layout())
@@ -127,6 +132,8 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
                 c = conds[i]
                 rest = dwell(env, int(i), dwell_s, (c.position_noise_m, c.pressure_noise_pa),
                              np.random.default_rng([seed, int(i)]))
+                mass = float(rest.pop("air_mass_kg"))
+                out["air_mass_kg"][i], out["free_air_nl"][i] = mass, free_air_nl(mass)
                 tr["row"].append(np.full(rest["t"].size, i))
                 for k, v in rest.items():
                     tr[k].append(v)
@@ -139,10 +146,10 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     return {k: np.array(v, dtype=object) for k, v in out.items()}, traces, dec
 
 
-def references(oracle: Any, conds: list) -> dict[str, np.ndarray]:
+def references(oracle: Any, conds: list, dwell_s: float = 0.0) -> dict[str, np.ndarray]:
     """What a conventional controller and the oracle do under each of ``conds`` (noise-free;
-    one plan and one batched run per distinct condition)."""
-    from agents.base import run_first_episodes
+    one plan and one batched run per distinct condition), each stroke followed by the same rest
+    as the controller's (``dwell_s``), so that the air is counted alike."""
     from agents.oracle import TimedCutPolicy
     from pneugym.envs.cutoff import CutOffVectorEnv
 
@@ -154,8 +161,8 @@ def references(oracle: Any, conds: list) -> dict[str, np.ndarray]:
     plans = oracle.plan_many(uniq)
     t_cut = np.array([math.inf] * len(uniq) + [t for t, _ in plans])
     env = CutOffVectorEnv(num_envs=t_cut.size, autoreset=False, **oracle.env_config)
-    fig = run_first_episodes(env, TimedCutPolicy(env.observation_layout(), t_cut), uniq + uniq,
-                             0)
+    fig, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t_cut), uniq + uniq,
+                          np.zeros(t_cut.size, dtype=bool), 0, False, dwell_s=dwell_s)
     m = len(uniq)
     per_key = {}
     for j, k in enumerate(keys):
@@ -222,7 +229,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
             conds = [sc.conditions(int(k), seed) for k in ks]
             truth = rec.truth(sc.name, seed, int(ks[0]), int(ks[-1]))
             if truth["stroke"].size < ks.size:
-                refs = references(oracle, conds)
+                refs = references(oracle, conds, float(dwell_s))
                 t = [sc.truth(int(k), seed) for k in ks]
                 rec.write_truth(sc.name, seed, {"stroke": ks, **{q: [r[q] for r in t]
                                                                  for q in t[0]}, **refs})
