@@ -10,8 +10,8 @@ The conventional stroke time and energy that the objective is counted against ar
 - :class:`Frozen`: any policy (a baseline's name or ``NAME=PATH`` of a trained one), unchanged.
 - :class:`AdaptiveGasLaw`: the Gas-Law rule with its K table scaled by a factor adjusted after
   every block of strokes by perturb-and-observe: alternate strokes run K slightly higher and
-  lower, and the factor moves toward the side whose measured objective was better; a stall or a
-  stick-slip moves it up (a later cut) at once.
+  lower, and the factor moves toward the side whose measured objective (stick-slip included)
+  was better; a stroke short of its end moves it up (a later cut) at once.
 - :class:`AdaptiveESAC`: ESAC fine-tuned from its own recorded strokes (each stroke labels the
   observations at its cut and before it with its measured outcome, as rollouts do), a share of
   strokes exploring another time demand; a candidate is deployed only if it predicts the most
@@ -101,11 +101,16 @@ class Frozen:
         """Back to a checkpointed state."""
 
 
+#: the adaptive Gas-Law factor stays within exp(+-LOG_G_MAX) of the calibrated K (0.25-4x)
+LOG_G_MAX = math.log(4.0)
+
+
 class AdaptiveGasLaw(Frozen):
     """The Gas-Law rule (as shipped, K per supply pressure) with its K scaled by a factor ``g``
     learned in operation: within a block, even strokes run ``g * exp(+delta)``, odd ones
     ``g * exp(-delta)``; after it, ``log g`` moves by ``step`` toward the better side (mean
-    measured objective), and by ``backoff`` up after any stall or stick-slip."""
+    measured objective, stick-slip included), and by ``backoff`` up after any stroke that did
+    not reach its end; ``g`` stays within 0.25-4."""
 
     reference_every = 100
 
@@ -140,15 +145,15 @@ class AdaptiveGasLaw(Frozen):
         cut = ~ref
         if not cut.any() or not math.isfinite(self.conv[0]):
             return
-        bad = (~np.asarray(rec["completed"], bool) | (np.asarray(rec["stick_slip_events"]) > 0))
-        if (bad & cut).any():
-            self.log_g += self.backoff
-        else:
+        if (~np.asarray(rec["completed"], bool) & cut).any():
+            self.log_g += self.backoff  # a stroke short of its end: cut later at once
+        else:  # stick-slip is in the measured objective: the side that sticks less wins
             j = measured_objective(rec, self.conv[0], self.conv[1])
             up = cut & (np.asarray(rec["stroke"]) % 2 == 0)
             down = cut & ~up
             if up.any() and down.any():
                 self.log_g += self.step * np.sign(j[up].mean() - j[down].mean())
+        self.log_g = float(np.clip(self.log_g, -LOG_G_MAX, LOG_G_MAX))
         self.version = self._version()
 
     def state(self) -> bytes:

@@ -34,7 +34,7 @@ def main() -> None:
     p.add_argument("--controllers", default="gaslaw,gaslaw-adaptive,esac=RUNS/esac,"
                                             "esac-adaptive=RUNS/esac")
     p.add_argument("--monitor", default="healthy:500,wear:500,shift:500,leak-onset:250,"
-                                        "load-change:500",
+                                        "aging:500,load-change:500",
                    help="SCENARIO:EVERY pairs: condition monitoring of the frozen Gas-Law run")
     args = p.parse_args()
     out = Path(args.out)

@@ -150,6 +150,13 @@ def test_adaptive_gaslaw_backs_off_after_a_stall_and_follows_the_better_side():
     assert c.log_g == pytest.approx(-c.step)
     c.update({**base, "reference": np.zeros(4, bool), "completed": np.array([1, 1, 0, 1], bool)})
     assert c.log_g == pytest.approx(-c.step + c.backoff)
+    # stick-slip on the K-down strokes only: the objective sends K up, by one step
+    c.update({**base, "reference": np.zeros(4, bool),
+              "stick_slip_events": np.array([0, 1, 0, 1])})
+    assert c.log_g == pytest.approx(c.backoff)
+    for _ in range(100):  # stalls for ever: the factor stops at 4
+        c.update({**base, "reference": np.zeros(4, bool), "completed": np.zeros(4, bool)})
+    assert math.exp(c.log_g) == pytest.approx(4.0)
     c2 = AdaptiveGasLaw(env)
     c2.restore(c.state(), None, "x")
     assert (c2.log_g, c2.conv, c2.version) == (c.log_g, c.conv, c.version)
@@ -330,3 +337,9 @@ def test_a_finished_run_extends_to_more_strokes(tmp_path):
     with Record(db, read_only=True) as rec:
         assert rec.strokes(rid)["stroke"].tolist() == list(range(50))
         assert rec.runs()[0]["strokes"] == 50
+    from pneugym.cli import main
+
+    assert main(["operate", "--db", str(db), "--remove", rid]) == 0
+    with Record(db, read_only=True) as rec:
+        assert rec.runs() == [] and rec.strokes(rid)["stroke"].size == 0
+        assert rec.con.execute("SELECT count(*) FROM truth").fetchone()[0] == 50  # kept

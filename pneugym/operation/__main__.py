@@ -44,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export-runs", metavar="DIR",
                    help="strokes of --run as pneugym-measurement/1 runs")
     p.add_argument("--run", help="the run id for --export-runs (SCENARIO/seedN/CONTROLLER)")
+    p.add_argument("--remove", metavar="RUN", action="append", default=[],
+                   help="delete a run from the record first (repeatable)")
     p.add_argument("--monitor", metavar="RUN", action="append", default=[],
                    help="run the discrepancy workflow on RUN's record at checkpoints "
                         "(condition monitoring; repeatable)")
@@ -65,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scenario and not args.policy:
         parser.error("--scenario needs at least one --policy")
     if not (args.policy or args.out or args.export_parquet or args.export_runs
-            or args.monitor):
+            or args.monitor or args.remove):
         parser.error("nothing to do: give --scenario and --policy, --out, --monitor, "
                      "--export-parquet or --export-runs")
     from ..outputs import OutputError, check_output_dir, check_output_file
@@ -80,6 +82,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OutputError as exc:
         parser.error(str(exc))
 
+    for rid in args.remove:
+        with Record(args.db) as rec:
+            try:
+                n = rec.remove_run(rid)
+            except ValueError as exc:
+                parser.error(str(exc))
+        print(f"removed {rid} ({n} strokes) from {args.db}")
     ids = []
     for spec in args.policy:
         try:

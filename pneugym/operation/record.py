@@ -131,7 +131,7 @@ class Record:
                               if cfg.get(k) != old["config"].get(k))
                 raise ValueError(f"{self.path} already holds run {run_id!r} with another "
                                  f"configuration (differs in {diff}); give another --db or "
-                                 f"remove the run")
+                                 f"remove the run (pneugym operate --remove RUN)")
             self.con.execute("UPDATE runs SET strokes = ?, status = 'running' WHERE run_id = ?",
                              [strokes, run_id])
             ck = self.con.execute("SELECT next_stroke, state FROM checkpoints WHERE run_id = ?",
@@ -141,6 +141,22 @@ class Record:
                          [run_id, scenario, seed, controller, strokes, json.dumps(cfg),
                           json.dumps(provenance), started])
         return 0, None
+
+    def remove_run(self, run_id: str) -> int:
+        """Delete a run: its strokes, traces, models, checkpoint and monitoring (the truth of its
+        scenario stays for the other runs). Returns the strokes removed."""
+        if self.run(run_id) is None:
+            raise ValueError(f"no run {run_id!r} in {self.path}")
+        n = int(self.con.execute("SELECT count(*) FROM strokes WHERE run_id = ?",
+                                 [run_id]).fetchone()[0])
+        tables = [r[0] for r in self.con.execute(
+            "SELECT table_name FROM information_schema.tables").fetchall()]
+        self.con.execute("BEGIN TRANSACTION")
+        for t in ("strokes", "traces", "models", "checkpoints", "monitor", "runs"):
+            if t in tables:
+                self.con.execute(f"DELETE FROM {t} WHERE run_id = ?", [run_id])
+        self.con.execute("COMMIT")
+        return n
 
     def finish_run(self, run_id: str, status: str = "finished") -> None:
         self.con.execute("UPDATE runs SET status = ? WHERE run_id = ?", [status, run_id])

@@ -153,6 +153,11 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     _s("leak-onset", "healthy until stroke 2000, then a fitting starts leaking: 4e-7 m^2 by "
                      "stroke 2500, held",
        leak_drive_area_m2=[(0, 0.0), (2000, 0.0), (2500, 4e-7)]),
+    _s("aging", "an old cylinder, beyond what the policies were trained on (friction +-30 %, "
+                "valve delay +-20 %): friction doubles, the valve's delay grows 60 %, a leak grows "
+                "to 2e-7 m^2",
+       friction_scale=[(0, 1.0), (5000, 2.0)], valve_delay_scale=[(0, 1.0), (5000, 1.6)],
+       leak_drive_area_m2=[(0, 0.0), (5000, 2e-7)]),
     _s("load-change", "the product changes: the load steps from 10 to 25 kg at stroke 1500 and "
                       "to 5 kg at stroke 3500",
        load_mass_kg=[(0, 10.0), (1499, 10.0), (1500, 25.0), (3499, 25.0), (3500, 5.0)]),
