@@ -102,6 +102,8 @@ def test_references_bound_the_controllers(gaslaw_life):
     assert conv["air_fraction"] == pytest.approx(0.0, abs=1e-9)
     assert ad["strokes"] == 60 and ad["reference_strokes"] == 1  # stroke 0 runs uncut
     assert ad["oracle_fraction"] < 1.0
+    assert oracle["oracle_fraction_regular"] == pytest.approx(1.0, abs=1e-9)
+    assert ad["oracle_fraction_regular"] > ad["oracle_fraction"]  # without the uncut stroke
     with Record(db, read_only=True) as rec:
         d = life(rec, ids["gaslaw-adaptive"])
     # the air is counted alike (to the end of each stroke's rest): a cut stroke draws less

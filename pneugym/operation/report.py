@@ -4,8 +4,9 @@ JSON) of :func:`write_report`.
 
 ``oracle_fraction = (J - J_conventional) / (J_oracle - J_conventional)`` on the summed objective
 of the strokes (the same definition as the evaluation's); ``air_fraction`` is the air saved
-against the conventional controller over what the oracle saves. Reference strokes (uncut) count
-as the controller's strokes: their air is spent.
+against the conventional controller over what the oracle saves. Reference strokes (uncut) and
+exploring ones count as the controller's strokes: their air is spent.
+``oracle_fraction_regular`` leaves them out: what the controller's own decisions get.
 """
 from __future__ import annotations
 
@@ -34,7 +35,12 @@ SELECT count(*) AS strokes, sum(stalled::INT) AS stalls,
        (sum(conventional_free_air_nl) - sum(free_air_nl))
          / nullif(sum(conventional_free_air_nl) - sum(oracle_free_air_nl), 0) AS air_fraction,
        (sum(objective) - sum(conventional_objective))
-         / nullif(sum(oracle_objective) - sum(conventional_objective), 0) AS oracle_fraction
+         / nullif(sum(oracle_objective) - sum(conventional_objective), 0) AS oracle_fraction,
+       (sum(objective) FILTER (WHERE NOT reference AND NOT explore)
+          - sum(conventional_objective) FILTER (WHERE NOT reference AND NOT explore))
+         / nullif(sum(oracle_objective) FILTER (WHERE NOT reference AND NOT explore)
+                  - sum(conventional_objective) FILTER (WHERE NOT reference AND NOT explore), 0)
+         AS oracle_fraction_regular
 FROM ({JOINED})
 """
 
@@ -237,9 +243,10 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
             scen = rec.run(ids[0])["config"]["scenario"]
             png = plot(rec, ids, out / f"{sc}_seed{seed}.png")
             lines += [f"## {sc} (seed {seed})", "", scen["description"], "",
-                      "| controller | strokes | oracle fraction | air saved / oracle's | "
-                      "air saved [m³] | stalls | stick-slip strokes | worst stroke [s] | "
-                      "recovery [strokes] |", "|---|---|---|---|---|---|---|---|---|"]
+                      "| controller | strokes | oracle fraction | regular strokes | "
+                      "air saved / oracle's | air saved [m³] | stalls | stick-slip strokes | "
+                      "worst stroke [s] | recovery [strokes] |",
+                      "|---|---|---|---|---|---|---|---|---|---|"]
             steps = step_changes(scen)
             monitored: list[str] = []
             for rid in ids:
@@ -263,7 +270,8 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                 rec_txt = ", ".join(f"{v if v is not None else 'never'}"
                                     for v in s["recovery"].values()) or "-"
                 lines.append(f"| {_label(rec.run(rid)['controller'])} | {s['strokes']} | "
-                             f"{_f(s['oracle_fraction'])} | {_f(s['air_fraction'])} | "
+                             f"{_f(s['oracle_fraction'])} | {_f(s['oracle_fraction_regular'])} | "
+                             f"{_f(s['air_fraction'])} | "
                              f"{saved:.2f} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")
             if monitored:
