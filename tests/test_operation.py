@@ -345,3 +345,13 @@ def test_a_finished_run_extends_to_more_strokes(tmp_path):
     with Record(db, read_only=True) as rec:
         assert rec.runs() == [] and rec.strokes(rid)["stroke"].size == 0
         assert rec.con.execute("SELECT count(*) FROM truth").fetchone()[0] == 50  # kept
+
+
+def test_air_cost_of_any_named_effect():
+    from pneugym.operation.monitor import air_cost
+
+    leak = air_cost({"leak_drive_area_m2": 4e-7}, 0.9, 2.5e5, 10.0)
+    dead = air_cost({"dead_volume_m3": 2e-5}, 0.9, 2.5e5, 10.0)  # not a family rig field
+    assert leak["extra_per_stroke_conventional_nl"] > 0
+    assert dead["extra_per_stroke_conventional_nl"] > 0  # more volume to fill
+    assert leak["conventional_nl"] == dead["conventional_nl"]

@@ -54,18 +54,18 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
     from agents.oracle import TimedCutPolicy
     from pneugym.envs import Conditions
     from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.params import RigParams
 
     from .run import DWELL_S, run_block
 
-    changes = tuple((f"effects.{k}", float(v)) for k, v in effect.items())
-    base = Conditions(supply_pressure_gauge_pa=supply_gauge_pa, load_mass_kg=load_kg)
-    leaky = Conditions(**{**base.to_dict(), "rig_changes": changes})
-    env = CutOffVectorEnv(num_envs=4, autoreset=False)
-    t = np.array([math.inf, cut_s, math.inf, cut_s])
-    f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t),
-                        [base, base, leaky, leaky], np.zeros(4, dtype=bool), 0, False,
-                        dwell_s=DWELL_S)
-    nl = [float(v) for v in f["free_air_nl"]]
+    cond = Conditions(supply_pressure_gauge_pa=supply_gauge_pa, load_mass_kg=load_kg)
+    t = np.array([math.inf, cut_s])
+    nl = []
+    for rig in (RigParams(), RigParams().with_(effects=dict(effect))):
+        env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=rig)
+        f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t), [cond, cond],
+                            np.zeros(2, dtype=bool), 0, False, dwell_s=DWELL_S)
+        nl += [float(v) for v in f["free_air_nl"]]
     return {"conventional_nl": nl[0], "conventional_with_effect_nl": nl[2],
             "cut_nl": nl[1], "cut_with_effect_nl": nl[3], "cut_s": float(cut_s),
             "extra_per_stroke_conventional_nl": nl[2] - nl[0],
