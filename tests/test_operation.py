@@ -355,3 +355,15 @@ def test_air_cost_of_any_named_effect():
     assert leak["extra_per_stroke_conventional_nl"] > 0
     assert dead["extra_per_stroke_conventional_nl"] > 0  # more volume to fill
     assert leak["conventional_nl"] == dead["conventional_nl"]
+
+
+def test_alarm_reads_an_ambiguous_answer_as_a_change():
+    from pneugym.operation.monitor import alarm
+
+    pts = [{"stroke": 250, "first_stroke": 0, "named": "none", "effect": {}, "air_cost": {},
+            "decision": "none"},
+           {"stroke": 500, "first_stroke": 250, "named": "ambiguous", "effect": {},
+            "air_cost": {}, "decision": "ambiguous: leakage and dead_volume explain it alike"}]
+    assert alarm(pts[:1]).startswith("no change: 1 checkpoints up to stroke 250")
+    assert alarm(pts) == ("a change it cannot name (ambiguous: leakage and dead_volume explain "
+                          "it alike), first significant in strokes 250-499")

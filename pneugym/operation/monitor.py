@@ -147,13 +147,16 @@ def checkpoints(rec: Record, run_id: str) -> list[dict[str, Any]]:
 
 
 def alarm(points: list[dict[str, Any]]) -> str:
-    """The monitor's verdict in one line: the first named effect, or "no change"."""
-    hit = next((p for p in points if p["named"] not in ("none", "ambiguous")), None)
+    """The monitor's verdict in one line: the first checkpoint at which something changed (an
+    effect named, or two the workflow cannot tell apart), or "no change"."""
+    hit = next((p for p in points if p["named"] != "none"), None)
     if hit is None:
         return (f"no change: {len(points)} checkpoints up to stroke "
                 f"{points[-1]['stroke'] if points else 0}, no effect named")
+    where = f"first significant in strokes {hit['first_stroke']}-{hit['stroke'] - 1}"
+    if hit["named"] == "ambiguous":
+        return f"a change it cannot name ({hit['decision']}), {where}"
     vals = ", ".join(f"{k} {v:.2g}" for k, v in hit["effect"].items() if v > 0)
     cost = hit["air_cost"].get("extra_per_stroke_conventional_nl")
     extra = f"; costs {cost:.3f} NL per conventional stroke" if cost is not None else ""
-    return (f"{hit['named']}: {vals}, first significant in strokes {hit['first_stroke']}-"
-            f"{hit['stroke'] - 1}{extra}")
+    return f"{hit['named']}: {vals}, {where}{extra}"
