@@ -8,8 +8,8 @@ Scenarios are independent: two processes on disjoint ``--scenarios`` with their 
 the same figures as one (the documented figures were run so, on 2 cores).
 
 Needs a trained ESAC run (``pneugym train --algo esac --out runs/esac``, or the main job's).
-About 35 minutes on 2 cores for the controllers, and 35 more for the condition monitoring
-(the discrepancy workflow at 60 checkpoints, 30-40 s each).
+About 40 minutes on one core for the controllers, and 40 more for the condition monitoring
+(the discrepancy workflow at 70 checkpoints, 30-60 s each).
 """
 from __future__ import annotations
 
