@@ -1,9 +1,10 @@
 """Controllers for a rig's operating life (:mod:`pneugym.operation`): a frozen policy, and two that
 adapt from the strokes they have made (thesis 6.8, ch. 7).
 
-Every controller here sees only what a real one sees: its sensors during a stroke and each
-finished stroke's measured outcome (completed, stalled, stick-slips from the position trace,
-stroke time from the end switch, the wasted energy from the driving chamber's final pressure).
+Every controller here sees only what a real one sees: its sensors during a stroke, the supply
+set-point and the payload, and each finished stroke's measured outcome (completed, stalled, the
+stick-slip events the position trace shows, the stroke time an end switch gives, the wasted
+energy from the driving chamber's final pressure; :data:`MEASURED`).
 The conventional stroke time and energy that the objective is counted against are measured on
 *reference strokes*: every ``reference_every``-th stroke runs uncut (its air is spent, and counted).
 
@@ -45,7 +46,8 @@ def measured_objective(rec: Mapping[str, np.ndarray], conv_time_s: np.ndarray,
                        w_stall: float = 2.0) -> np.ndarray:
     """The environment's objective as a controller can measure it: wasted energy over the
     reference stroke's, minus the weighted time increase over the reference stroke's, stick-slip
-    and stall (an incomplete stroke scores as a stall)."""
+    (once per stroke with any, where the environment counts each event) and stall (an incomplete
+    stroke scores as a stall)."""
     t = np.asarray(rec["stroke_time_s"], dtype=float)
     done = np.asarray(rec["completed"], dtype=bool)
     inc = np.where(done, np.maximum(np.nan_to_num(t / conv_time_s - 1.0), 0.0), 0.0)
@@ -60,12 +62,14 @@ class Frozen:
 
     needs_inputs = False  #: whether the loop records the observations at each cut
     reference_every = 0  #: 0: no reference strokes
+    privileged = False  #: told the true conditions (the oracle: a check, not a controller)
 
     def __init__(self, spec: str, env: Any, seed: int = 0):
         from .evaluation.specs import make_named_policy
 
         self.spec = spec
         self.name, self.policy = make_named_policy(spec, env)
+        self.privileged = bool(getattr(self.policy, "privileged", False))
         self.seed = int(seed)
         self.version = f"{self.name}"
 
@@ -221,15 +225,17 @@ class AdaptiveESAC(Frozen):
         return pol, {"reference": ref, "explore": explore}
 
     # -- learning from the record --------------------------------------------------------------
-    def _samples(self, rec: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...] | None:
-        """Inputs, targets, mask and stroke index of the record's cut strokes, labelled with
-        the latest earlier reference stroke's conventional time and energy."""
+    def _samples(self, rec: Mapping[str, np.ndarray], first: int = 0
+                 ) -> tuple[np.ndarray, ...] | None:
+        """Inputs, targets, mask and stroke index of the record's cut strokes from ``first`` on,
+        labelled with the latest earlier reference stroke's conventional time and energy."""
         from .esac.data import samples
 
         ref = rec["reference"].astype(bool)
         idx = np.arange(ref.size)
         last_ref = np.maximum.accumulate(np.where(ref, idx, -1))
         use = ~ref & (last_ref >= 0) & np.array([b is not None for b in rec["decision_inputs"]])
+        use &= rec["stroke"] >= first
         use &= ~np.isnan(rec["cutoff_time_s"])
         if use.sum() < 20:
             return None
@@ -260,9 +266,10 @@ class AdaptiveESAC(Frozen):
         from .esac.model import fit, loss
 
         self.last_adapt = stroke
-        rec = record.strokes(run_id, max(0, stroke - self.window), stroke - 1,
-                             columns=MEASURED + ("decision_inputs",))
-        got = self._samples(rec) if rec["stroke"].size else None
+        # a further reference_every strokes back: the reference stroke that labels the first ones
+        rec = record.strokes(run_id, max(0, stroke - self.window - self.reference_every),
+                             stroke - 1, columns=MEASURED + ("decision_inputs",))
+        got = self._samples(rec, first=stroke - self.window) if rec["stroke"].size else None
         if got is None:
             return []
         x, y, mask, st = got

@@ -367,3 +367,47 @@ def test_alarm_reads_an_ambiguous_answer_as_a_change():
     assert alarm(pts[:1]).startswith("no change: 1 checkpoints up to stroke 250")
     assert alarm(pts) == ("a change it cannot name (ambiguous: leakage and dead_volume explain "
                           "it alike), first significant in strokes 250-499")
+
+
+def test_a_block_tells_policies_only_what_is_known_and_records_the_latched_cut():
+    from agents.oracle import TimedCutPolicy
+    from pneugym.envs import Conditions
+    from pneugym.operation.run import run_block
+
+    class Blip(TimedCutPolicy):  # cuts for one period only; the environment latches it
+        def begin_episodes(self, conditions):
+            self.told = list(conditions)
+
+        def act(self, obs):
+            t = self.read(obs, "time")
+            return ((t > 0.3) & (t < 0.304)).astype(np.int64)
+
+    env = CutOffVectorEnv(num_envs=1, autoreset=False, **ENV_CONFIG)
+    truth = Conditions(friction_scale=1.3, valve_delay_scale=1.2,
+                       rig_changes=(("effects.leak_drive_area_m2", 2e-7),))
+    pol = Blip(env.observation_layout())
+    fig, tr, _ = run_block(env, pol, [truth], np.zeros(1, bool), 0, False, dwell_s=0.1)
+    told = pol.told[0]
+    assert (told.friction_scale, told.valve_delay_scale, told.rig_changes) == (1.0, 1.0, ())
+    assert (told.load_mass_kg, told.supply_pressure_gauge_pa) == (10.0, 250_000.0)
+    assert np.all(np.diff(tr["valve"]) <= 0) and tr["valve"][-1] == 0  # never reopened
+    assert fig["cutoff_time_s"][0] == pytest.approx(0.3, abs=0.006)
+
+
+def test_one_scenario_name_holds_one_set_of_knots(tmp_path):
+    db = tmp_path / "s.duckdb"
+    operate(Scenario("mine", drift={"load_mass_kg": 12.0}), "endstroke", strokes=5, db=db,
+            progress=False)
+    with pytest.raises(ValueError, match="other knots"):
+        operate(Scenario("mine", drift={"load_mass_kg": 20.0}), "gaslaw", strokes=5, db=db,
+                progress=False)
+
+
+def test_a_run_without_strokes_is_reported_not_crashed(tmp_path):
+    db = tmp_path / "e.duckdb"
+    with Record(db) as rec:
+        rec.start_run("healthy/seed0/x", "healthy", 0, "x", 10,
+                      {"scenario": SCENARIOS["healthy"].to_dict()}, {}, "now")
+    res = write_report(db, tmp_path / "rep")
+    assert res["runs"]["healthy/seed0/x"]["strokes"] == 0
+    assert "| x | 0 | - |" in (tmp_path / "rep" / "report.md").read_text()

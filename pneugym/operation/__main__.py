@@ -6,7 +6,7 @@ or more controllers, record every stroke in DuckDB, and report.
     pneugym operate --db ops.duckdb --monitor leak-onset/seed0/gaslaw --every 250
     pneugym operate --db ops.duckdb --out ops/               # report what the record holds
     pneugym operate --db ops.duckdb --export-parquet ops/parquet
-    pneugym operate --db ops.duckdb --export-runs ops/runs --run healthy/seed0/gaslaw --last 5
+    pneugym operate --db ops.duckdb --export-runs ops/runs --run healthy/seed0/gaslaw --first 0 --last 5
 """
 from __future__ import annotations
 
@@ -125,7 +125,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         res = write_report(args.db, args.out, ids or None)
         for rid, s in res["runs"].items():
-            print(f"{rid}: oracle fraction {s['oracle_fraction']:.3f}, stalls {s['stalls']}, "
+            frac = "-" if s["oracle_fraction"] is None else f"{s['oracle_fraction']:.3f}"
+            print(f"{rid}: oracle fraction {frac}, stalls {s['stalls']}, "
                   f"stick-slip strokes {s['stick_slip_strokes']}")
         print(f"report: {args.out}/report.md")
     return 0

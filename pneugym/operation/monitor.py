@@ -7,8 +7,9 @@ give it different ones) (their sensor traces at the control rate, exported as ``
 with the rig as commissioned), lets the workflow calibrate the nominal model (Cd and friction: wear
 and temperature move them) and test every candidate effect, and records its answer: the effect
 named (or ``none``), the fitted values and, for a named effect, what it costs in air (the free air
-of a conventional stroke and of the run's median cut, with and without the effect, on the
-plant). The first checkpoint that names an effect is the alarm ("leakage: drive leak area
+of a conventional stroke and of the window's median cut, with and without the effect, on the
+plant). The exported runs state each stroke's payload, as an operator who knows the product's mass
+would. The first checkpoint that names an effect is the alarm ("leakage: drive leak area
 2.1e-7 m^2, first significant after stroke 2000"). Answers are written to the record's ``monitor``
 table.
 """
@@ -47,10 +48,11 @@ def _pick(strokes: np.ndarray, cut_s: np.ndarray, window: int) -> np.ndarray:
 
 
 def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
-             load_kg: float) -> dict[str, float]:
+             load_kg: float, dwell_s: float | None = None) -> dict[str, float]:
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
     value}``): a conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig, each
-    with the operating rest at the stroke end (:data:`~pneugym.operation.run.DWELL_S`)."""
+    with the rest at the stroke end (``dwell_s``, default the operating
+    :data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy
     from pneugym.envs import Conditions
     from pneugym.envs.cutoff import CutOffVectorEnv
@@ -64,7 +66,8 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
     for rig in (RigParams(), RigParams().with_(effects=dict(effect))):
         env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=rig)
         f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t), [cond, cond],
-                            np.zeros(2, dtype=bool), 0, False, dwell_s=DWELL_S)
+                            np.zeros(2, dtype=bool), 0, False,
+                            dwell_s=DWELL_S if dwell_s is None else dwell_s)
         nl += [float(v) for v in f["free_air_nl"]]
     return {"conventional_nl": nl[0], "conventional_with_effect_nl": nl[2],
             "cut_nl": nl[1], "cut_with_effect_nl": nl[3], "cut_s": float(cut_s),
@@ -122,7 +125,8 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                               "run_id = ? AND stroke BETWEEN ? AND ?", [run_id, c - every, c - 1])
                 load = float(runs[-1].meta["load_mass_kg"])
                 cost = air_cost(effect, float(np.nanmedian(t["cutoff_time_s"])),
-                                float(np.median(t["supply_setpoint_pa"])), load)
+                                float(np.median(t["supply_setpoint_pa"])), load,
+                                float(run["config"].get("dwell_s", 0.0)))
             rec.con.execute("INSERT OR REPLACE INTO monitor VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                             [run_id, c, int(c - every), wf.named_effect_, wf.decision_,
                              json.dumps(effect), json.dumps(cost), wall])

@@ -15,6 +15,7 @@ Tables (one database may hold many runs: a run is one scenario, seed and control
   a conventional controller and the drift-aware oracle do under it. Controllers never read it.
 - ``models``: every model a controller built, deployed or not, with the scores that decided.
 - ``checkpoints``: each run's next stroke and the controller's state.
+- ``scenarios``: the knots, rest and environment each scenario name's truth was made with.
 
 A block of strokes, its traces and the checkpoint are written in one transaction: an
 interrupted run leaves no half-written stroke, and resumes from its checkpoint.
@@ -51,6 +52,8 @@ CREATE TABLE IF NOT EXISTS truth (
 CREATE TABLE IF NOT EXISTS models (
     run_id VARCHAR, version VARCHAR, stroke BIGINT, kind VARCHAR, deployed BOOLEAN,
     score_new DOUBLE, score_running DOUBLE, detail JSON, blob BLOB);
+CREATE TABLE IF NOT EXISTS scenarios (
+    scenario VARCHAR, seed BIGINT, spec JSON, PRIMARY KEY (scenario, seed));
 CREATE TABLE IF NOT EXISTS checkpoints (
     run_id VARCHAR PRIMARY KEY, next_stroke BIGINT, state BLOB);
 """
@@ -152,10 +155,14 @@ class Record:
         tables = [r[0] for r in self.con.execute(
             "SELECT table_name FROM information_schema.tables").fetchall()]
         self.con.execute("BEGIN TRANSACTION")
-        for t in ("strokes", "traces", "models", "checkpoints", "monitor", "runs"):
-            if t in tables:
-                self.con.execute(f"DELETE FROM {t} WHERE run_id = ?", [run_id])
-        self.con.execute("COMMIT")
+        try:
+            for t in ("strokes", "traces", "models", "checkpoints", "monitor", "runs"):
+                if t in tables:
+                    self.con.execute(f"DELETE FROM {t} WHERE run_id = ?", [run_id])
+            self.con.execute("COMMIT")
+        except BaseException:
+            self.con.execute("ROLLBACK")
+            raise
         return n
 
     def finish_run(self, run_id: str, status: str = "finished") -> None:
@@ -194,6 +201,20 @@ class Record:
         except BaseException:
             con.execute("ROLLBACK")
             raise
+
+    def claim_truth(self, scenario: str, seed: int, spec: Mapping[str, Any]) -> None:
+        """Tie ``scenario`` and ``seed``'s truth rows to ``spec`` (the scenario's knots, the rest
+        at the stroke end, the environment): another spec under the same name is refused, never
+        joined to stale references."""
+        text = json.dumps(json.loads(json.dumps(spec)), sort_keys=True)
+        row = self.con.execute("SELECT spec FROM scenarios WHERE scenario = ? AND seed = ?",
+                               [scenario, seed]).fetchone()
+        if row is None:
+            self.con.execute("INSERT INTO scenarios VALUES (?, ?, ?)", [scenario, seed, text])
+        elif json.loads(row[0]) != json.loads(text):
+            raise ValueError(f"{self.path} holds scenario {scenario!r} (seed {seed}) with other "
+                             f"knots, rest or environment; name the scenario differently or give "
+                             f"another --db")
 
     def write_truth(self, scenario: str, seed: int, rows: Mapping[str, Sequence[Any]]) -> None:
         """Truth rows of ``scenario`` and ``seed`` (strokes already there are kept)."""

@@ -105,7 +105,8 @@ def rolling_fraction(d: dict[str, np.ndarray], window: int = 100) -> np.ndarray:
 def recovery(d: dict[str, np.ndarray], steps: list[int], target: float = 0.95,
              window: int = 100) -> dict[int, int | None]:
     """Strokes after each step change until the rolling oracle fraction (over ``window``
-    strokes, all after the step) is back to ``target``; None if never."""
+    strokes, all after the step) is back to ``target``; None if never. At least ``window``:
+    a controller the step did not disturb scores ``window``."""
     out: dict[int, int | None] = {}
     for s in steps:
         after = {k: v[d["stroke"] >= s] for k, v in d.items()}
@@ -119,12 +120,14 @@ def recovery(d: dict[str, np.ndarray], steps: list[int], target: float = 0.95,
 
 
 def step_changes(scenario: dict[str, Any]) -> list[int]:
-    """The strokes at which a scenario steps (two knots one stroke apart)."""
+    """The strokes at which a scenario steps (two knots one stroke apart), at the start of the
+    drift step the new value first holds in."""
+    res = int(scenario.get("resolution", 1))
     out = set()
     for pts in scenario["drift"].values():
         for (k0, v0), (k1, v1) in zip(pts, pts[1:]):
             if k1 - k0 == 1 and v1 != v0:
-                out.add(int(k1))
+                out.add(int(-(-k1 // res) * res))
     return sorted(out)
 
 
@@ -137,13 +140,18 @@ def plot(rec: Record, run_ids: list[str], path: str | Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
-    d = None
+    longest = None
     for rid in run_ids:
         d = life(rec, rid)
+        if d["stroke"].size == 0:  # nothing recorded yet
+            continue
         saved = np.cumsum(d["conventional_free_air_nl"] - d["free_air_nl"]) / 1000
         ax[0].plot(d["stroke"], saved, label=_label(rec.run(rid)["controller"]))
         ax[1].plot(d["stroke"], rolling_fraction(d), label=_label(rec.run(rid)["controller"]))
-    if d is not None:
+        if longest is None or d["stroke"].size > longest["stroke"].size:
+            longest = d
+    if longest is not None:
+        d = longest
         ax[0].plot(d["stroke"], np.cumsum(d["conventional_free_air_nl"]
                                           - d["oracle_free_air_nl"]) / 1000, "k--",
                    label="oracle (knows the drift)")
@@ -164,7 +172,8 @@ def plot(rec: Record, run_ids: list[str], path: str | Path) -> Path:
     ax[2].set_ylabel("hidden truth")
     ax[2].set_xlabel("stroke")
     for a in ax:
-        a.legend(fontsize=7)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=7)
         a.grid(alpha=0.3)
     fig.tight_layout()
     path = Path(path)
@@ -266,13 +275,14 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                     s["monitor"] = {"alarm": alarm(points), "checkpoints": points}
                     monitored.append(f"- {_label(rec.run(rid)['controller'])}: {alarm(points)}")
                 result["runs"][rid] = s
-                saved = (s["air_conventional_nl"] - s["air_nl"]) / 1000
+                saved = (None if s["air_nl"] is None  # a run with no stroke recorded yet
+                         else (s["air_conventional_nl"] - s["air_nl"]) / 1000)
                 rec_txt = ", ".join(f"{v if v is not None else 'never'}"
                                     for v in s["recovery"].values()) or "-"
                 lines.append(f"| {_label(rec.run(rid)['controller'])} | {s['strokes']} | "
                              f"{_f(s['oracle_fraction'])} | {_f(s['oracle_fraction_regular'])} | "
                              f"{_f(s['air_fraction'])} | "
-                             f"{saved:.2f} | {s['stalls']} | {s['stick_slip_strokes']} | "
+                             f"{_f(saved, 2)} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")
             if monitored:
                 lines += ["", "Condition monitoring (the discrepancy workflow on the record):",
@@ -291,8 +301,8 @@ def _label(controller: str) -> str:
     return controller.split("=", 1)[0]
 
 
-def _f(v: Any) -> str:
-    return "-" if v is None else f"{v:.3f}"
+def _f(v: Any, digits: int = 3) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
 
 
 def _json(v: Any) -> Any:

@@ -7,7 +7,8 @@ between blocks). Before a block the controller may adapt from the record; after 
 measured outcome updates it, and the block, its sensor traces and the controller's checkpoint
 are written in one transaction. Beside the controller's strokes the loop records the truth of
 each stroke with what a conventional controller and the drift-aware oracle (the best single cut
-under the true conditions, :class:`agents.oracle.OraclePolicy`) do under it, once per drift step.
+under the true conditions, :class:`agents.oracle.OraclePolicy`) do under it, once per distinct
+condition of a block (a drift step holds one).
 """
 from __future__ import annotations
 
@@ -98,13 +99,24 @@ def dwell(env: Any, i: int, dwell_s: float, noise: tuple[float, float],
     return rest
 
 
+def known(c: Any) -> Any:
+    """What a controller is told of a stroke's conditions: the supply set-point and the payload
+    (an operator knows the product's mass), never friction, valve delay, leaks or dips."""
+    from pneugym.envs import Conditions
+
+    return Conditions(supply_pressure_gauge_pa=c.supply_pressure_gauge_pa,
+                      load_mass_kg=c.load_mass_kg)
+
+
 def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, inputs: bool,
-              lags: tuple[int, ...] = (0,), dwell_s: float = 0.0
+              lags: tuple[int, ...] = (0,), dwell_s: float = 0.0, privileged: bool = False
               ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], list]:
     """One block: every stroke of ``conds`` under ``policy`` (rows ``keep`` never cut), each
     followed by a rest of ``dwell_s`` at the end (:func:`dwell`). Returns the final figures, the
     sensor traces (``row``, ``t``, ``x``, ``p_drive``, ``p_exhaust`` absolute, ``valve``) and
-    each row's decision inputs (float32 bytes, or None)."""
+    each row's decision inputs (float32 bytes, or None). The policy is told each stroke's
+    :func:`known` conditions, the true ones only if ``privileged`` (the oracle, the
+    references)."""
     from agents.base import ObservationReader, collect_finals
     from pneugym.units import free_air_nl
 
@@ -113,7 +125,7 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     pa = float(env.rig.gas.ambient_pressure_pa)
     step = _Stepper(policy, keep, inputs, lags)
     obs, _ = env.reset(seed=seed, options={"conditions": list(conds)})
-    policy.begin_episodes(list(conds))
+    policy.begin_episodes(list(conds) if privileged else [known(c) for c in conds])
     done = np.zeros(n, dtype=bool)
     out: dict[str, list] = {}
     tr: dict[str, list] = {k: [] for k in ("row", "t", "x", "p_drive", "p_exhaust", "valve")}
@@ -125,7 +137,8 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
         tr["x"].append(read(obs, "position")[live])
         tr["p_drive"].append(read(obs, "p_drive")[live] + pa)
         tr["p_exhaust"].append(read(obs, "p_exhaust")[live] + pa)
-        tr["valve"].append(1 - a[live])
+        cut = (a[live] == 1) | (read(obs, "supply_cut")[live] > 0.5)  # the env latches the cut
+        tr["valve"].append(1 - cut.astype(np.int64))
         obs, _, _, _, info = env.step(a)
         for i in collect_finals(info, done, out):
             if dwell_s > 0:
@@ -162,7 +175,8 @@ def references(oracle: Any, conds: list, dwell_s: float = 0.0) -> dict[str, np.n
     t_cut = np.array([math.inf] * len(uniq) + [t for t, _ in plans])
     env = CutOffVectorEnv(num_envs=t_cut.size, autoreset=False, **oracle.env_config)
     fig, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t_cut), uniq + uniq,
-                          np.zeros(t_cut.size, dtype=bool), 0, False, dwell_s=dwell_s)
+                          np.zeros(t_cut.size, dtype=bool), 0, False, dwell_s=dwell_s,
+                          privileged=True)
     m = len(uniq)
     per_key = {}
     for j, k in enumerate(keys):
@@ -195,7 +209,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     ``dwell_s`` at the stroke end (the valve held). Returns the run's id."""
     from tqdm import tqdm
 
-    from agents.adaptive import make_controller
+    from agents.adaptive import MEASURED, make_controller
     from agents.esac.data import LAGS
     from agents.oracle import OraclePolicy
     from pneugym.envs.cutoff import CutOffVectorEnv
@@ -218,6 +232,8 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     with Record(db) as rec:
         start, state = rec.start_run(run_id, sc.name, seed, controller, strokes, config,
                                      provenance(), _now())
+        rec.claim_truth(sc.name, seed, {"scenario": sc.to_dict(), "dwell_s": float(dwell_s),
+                                        "env": ENV_CONFIG})
         if state is not None:
             ctrl.restore(state, rec, run_id)
         bar = tqdm(total=strokes, initial=min(start, strokes), desc=f"{sc.name} {controller}",
@@ -239,9 +255,9 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
             fig, traces, dec = run_block(env, policy, conds, flags["reference"],
                                          seed=int(np.random.default_rng([seed, k0]).integers(
                                              2**31)), inputs=ctrl.needs_inputs, lags=LAGS,
-                                         dwell_s=float(dwell_s))
+                                         dwell_s=float(dwell_s), privileged=ctrl.privileged)
             rows = _stroke_rows(sc, ks, fig, flags, dec, ctrl.version, conds)
-            ctrl.update({k: np.asarray(v) for k, v in rows.items() if k != "decision_inputs"})
+            ctrl.update({k: _measured(rows[k]) for k in MEASURED})
             traces["stroke"] = ks[traces.pop("row")]
             rec.write_block(run_id, rows, traces, int(ks[-1]) + 1, ctrl.state(), models)
             bar.update(ks.size)
@@ -253,7 +269,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
 def _stroke_rows(sc: Scenario, ks: np.ndarray, fig: dict, flags: dict, dec: list, version: str,
                  conds: list) -> dict[str, list]:
     def col(name: str) -> list:
-        return [None if v is None else v for v in fig[name]]
+        return list(fig[name])
 
     return {
         "stroke": ks.tolist(), "hour": [sc.hour(int(k)) for k in ks],
@@ -267,6 +283,15 @@ def _stroke_rows(sc: Scenario, ks: np.ndarray, fig: dict, flags: dict, dec: list
         "objective": col("objective"), "saving_ratio": col("saving_ratio"),
         "decision_inputs": dec,
     }
+
+
+def _measured(values: list) -> np.ndarray:
+    """A block's column for a controller: numbers as float (None as NaN), flags as bool."""
+    if all(isinstance(v, (bool, np.bool_)) for v in values):
+        return np.asarray(values, dtype=bool)
+    if all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values):
+        return np.asarray(values, dtype=np.int64)
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
 
 
 def _now() -> str:

@@ -7,8 +7,8 @@ and held beyond them; a step is two knots one stroke apart. The truth changes ev
 drift-aware oracle plan once per step), with a seeded random jitter of the friction per step.
 :meth:`Scenario.conditions` turns stroke ``k`` into the :class:`~pneugym.envs.Conditions` the plant
 runs under. The controller never sees them: it sees its sensors, the supply set-point (the supply
-pressure measured at the regulator, so a sagging compressor is seen) and the measured outcome of
-each stroke. Every quantity is in SI units (supply in Pa gauge, leak area in m^2, Cd included).
+pressure measured at the regulator, so a sagging compressor is seen), the payload (an operator
+knows the product's mass) and the measured outcome of each stroke. Every quantity is in SI units (supply in Pa gauge, leak area in m^2, Cd included).
 """
 from __future__ import annotations
 
