@@ -200,6 +200,10 @@ class AdaptiveESAC(Frozen):
         self.epochs, self.lr, self.min_gain = int(epochs), float(lr), float(min_gain)
         self.explore, self.explore_range = float(explore), tuple(explore_range)
         self.layout = env.unwrapped.observation_layout()
+        from .esac.data import LAGS
+
+        # the recorded lags' delays [s] (the loop records the observations LAGS periods back)
+        self.lag_s = np.asarray(LAGS, dtype=float) * float(self.layout["control_period_s"])
         self.rule = self.policy.rule()
         self.generation = 0
         self.last_adapt = 0
@@ -258,7 +262,6 @@ class AdaptiveESAC(Frozen):
         x, y, mask, rows = samples(data, pred.stroke_m, pred.delay_input)
         return x, y, mask, rec["stroke"][use][rows]
 
-    lag_s = np.zeros(1)  # set by the operating loop: the control periods of the recorded lags
 
     def adapt(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
         if stroke - self.last_adapt < self.adapt_every:

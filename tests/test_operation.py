@@ -103,6 +103,8 @@ def test_references_bound_the_controllers(gaslaw_life):
     assert ad["strokes"] == 60 and ad["reference_strokes"] == 1  # stroke 0 runs uncut
     assert ad["oracle_fraction"] < 1.0
     assert oracle["oracle_fraction_regular"] == pytest.approx(1.0, abs=1e-9)
+    assert oracle["oracle_fraction_last"] == pytest.approx(1.0, abs=1e-9)
+    assert conv["oracle_fraction_last"] == pytest.approx(0.0, abs=1e-9)
     assert ad["oracle_fraction_regular"] > ad["oracle_fraction"]  # without the uncut stroke
     with Record(db, read_only=True) as rec:
         d = life(rec, ids["gaslaw-adaptive"])
@@ -410,4 +412,4 @@ def test_a_run_without_strokes_is_reported_not_crashed(tmp_path):
                       {"scenario": SCENARIOS["healthy"].to_dict()}, {}, "now")
     res = write_report(db, tmp_path / "rep")
     assert res["runs"]["healthy/seed0/x"]["strokes"] == 0
-    assert "| x | 0 | - |" in (tmp_path / "rep" / "report.md").read_text()
+    assert "| x | 0 | - | - | - |" in (tmp_path / "rep" / "report.md").read_text()

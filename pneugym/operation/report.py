@@ -59,12 +59,24 @@ GROUP BY period ORDER BY period
 """
 
 
+#: the end of a life the summary also reports on [strokes]
+LAST = 1000
+
+
 def summary(rec: Record, run_id: str) -> dict[str, Any]:
-    """A run's figures over its whole life."""
+    """A run's figures over its whole life, and its oracle fraction over the last :data:`LAST`
+    strokes (``oracle_fraction_last``: where slow drift has gone furthest)."""
     cur = rec.con.execute(SUMMARY, [run_id])
     cols = [d[0] for d in cur.description]
     out = dict(zip(cols, cur.fetchone()))
-    return {k: (float(v) if isinstance(v, float) else v) for k, v in out.items()}
+    out = {k: (float(v) if isinstance(v, float) else v) for k, v in out.items()}
+    d = life(rec, run_id)
+    m = d["stroke"] > (d["stroke"].max() - LAST if d["stroke"].size else 0)
+    gap = d["oracle_objective"][m].sum() - d["conventional_objective"][m].sum()
+    out["oracle_fraction_last"] = (float((d["objective"][m].sum()
+                                          - d["conventional_objective"][m].sum()) / gap)
+                                   if m.any() and abs(gap) > 1e-12 else None)
+    return out
 
 
 def per_period(rec: Record, run_id: str, period: str = "hour") -> list[dict[str, Any]]:
@@ -253,9 +265,9 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
             png = plot(rec, ids, out / f"{sc}_seed{seed}.png")
             lines += [f"## {sc} (seed {seed})", "", scen["description"], "",
                       "| controller | strokes | oracle fraction | regular strokes | "
-                      "air saved / oracle's | air saved [m³] | stalls | stick-slip strokes | "
-                      "worst stroke [s] | recovery [strokes] |",
-                      "|---|---|---|---|---|---|---|---|---|---|"]
+                      f"last {LAST} strokes | air saved / oracle's | air saved [m³] | stalls | "
+                      "stick-slip strokes | worst stroke [s] | recovery [strokes] |",
+                      "|---|---|---|---|---|---|---|---|---|---|---|"]
             steps = step_changes(scen)
             monitored: list[str] = []
             for rid in ids:
@@ -281,6 +293,7 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                                     for v in s["recovery"].values()) or "-"
                 lines.append(f"| {_label(rec.run(rid)['controller'])} | {s['strokes']} | "
                              f"{_f(s['oracle_fraction'])} | {_f(s['oracle_fraction_regular'])} | "
+                             f"{_f(s['oracle_fraction_last'])} | "
                              f"{_f(s['air_fraction'])} | "
                              f"{_f(saved, 2)} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")

@@ -224,7 +224,6 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
         raise ValueError(f"dwell_s = {dwell_s!r} must be in [0, 10] s")
     probe = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
     ctrl = make_controller(controller, probe, seed)
-    ctrl.lag_s = np.asarray(LAGS, dtype=float) * probe.control_period_s
     run_id = run_id_of(sc.name, seed, controller)
     config = {"scenario": sc.to_dict(), "seed": seed, "block": block, "env": ENV_CONFIG,
               "dwell_s": float(dwell_s), "controller": ctrl.config()}
