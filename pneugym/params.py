@@ -239,7 +239,9 @@ class ValveParams:
     """Closed-centre 5/3 main valve and the exhaust path (thesis 3.3, 5.3).
 
     ``delay_s=None`` interpolates the thesis's pressure-dependent delay (0.215 s at 1.5 bar,
-    0.185 s at 2.5 bar gauge, linear, clipped to [0.05, 0.4] s). The spool then opens or closes
+    0.185 s at 2.5 bar gauge, linear, clipped to [0.05, 0.4] s). ``delay_scale`` multiplies
+    the delay (stated or interpolated): a slower or faster valve of the same kind, as a
+    calibration finds it. The spool then opens or closes
     linearly over ``ramp_s``. The exhaust path opens with the first opening and stays open.
     ``flow_model``: ``"thesis"`` (eqs. 4.1-4.3) or ``"iso6358"`` (sonic conductance from the
     same area, critical ratio ``iso_b``). Below a pressure drop of ``linear_ratio`` (relative) the
@@ -250,6 +252,7 @@ class ValveParams:
     exhaust_area_m2: float = 3.25e-5  # calibrated: exhaust chamber -> atmosphere, whole path
     discharge_coefficient: float = 0.72
     delay_s: float | None = None
+    delay_scale: float = 1.0
     ramp_s: float = 0.01
     flow_model: str = "thesis"
     iso_b: float = 0.528
@@ -261,6 +264,7 @@ class ValveParams:
         _check(self, "discharge_coefficient", 0.0 < self.discharge_coefficient <= 1.0, "in (0, 1]")
         if self.delay_s is not None:
             _check(self, "delay_s", 0.0 <= self.delay_s <= 5.0, "None or in [0, 5] s (ms given as s?)")
+        _check(self, "delay_scale", 0.0 < self.delay_scale <= 10.0, "in (0, 10]")
         _plausible(self, "area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "exhaust_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "ramp_s", 1.0, "ms given as s? (10 ms = 0.01 s)")
@@ -271,10 +275,10 @@ class ValveParams:
     def delay_for(self, supply_gauge_pa: float) -> float:
         """Switching delay [s] at a supply gauge pressure [Pa]."""
         if self.delay_s is not None:
-            return float(self.delay_s)
+            return float(self.delay_s) * self.delay_scale
         (p1, d1), (p2, d2) = THESIS_VALVE_DELAY
         d = d1 + (d2 - d1) * (supply_gauge_pa - p1) / (p2 - p1)
-        return float(min(max(d, 0.05), 0.4))
+        return float(min(max(d, 0.05), 0.4)) * self.delay_scale
 
 
 @dataclass(frozen=True)

@@ -357,8 +357,13 @@ class Plant:
     # -- state ---------------------------------------------------------------------------
     def initial_state(self, p_line_pa: Sequence[float] | float | None = None,
                       p_drive_pa: float | None = None, p_exhaust_pa: float | None = None,
-                      position_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """State arrays ``(y, d)`` at rest; defaults are the thesis's start of an extension."""
+                      position_m: float = 0.0, T_drive_k: float | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """State arrays ``(y, d)`` at rest; defaults are the thesis's start of an extension.
+
+        ``T_drive_k``: the driving chamber's air temperature [K] (default ambient), e.g. air
+        still warm from a fast fill; it relaxes to ambient only with heat transfer
+        (``EffectParams.heat_transfer_time_constant_s`` > 0)."""
         prm = self.params
         R, T = prm.gas.gas_constant_j_per_kg_k, prm.gas.ambient_temperature_k
         pa, ps = prm.gas.ambient_pressure_pa, prm.supply_pressure_pa
@@ -377,9 +382,12 @@ class Plant:
         for name, val in (("p_drive_pa", pd), ("p_exhaust_pa", pe)):
             if not (_real(val) and val > 0):
                 raise ValueError(f"{name} = {val!r} must be a positive absolute pressure [Pa]")
-        y[b + L.Y_MD] = pd * vd / (R * T)
+        td = T if T_drive_k is None else T_drive_k
+        if not (_real(td) and 150.0 <= td <= 600.0):
+            raise ValueError(f"T_drive_k = {T_drive_k!r} must be an air temperature in [150, 600] K")
+        y[b + L.Y_MD] = pd * vd / (R * td)
         y[b + L.Y_ME] = pe * ve / (R * T)
-        y[b + L.Y_TD] = y[b + L.Y_TE] = T
+        y[b + L.Y_TD], y[b + L.Y_TE] = td, T
         y[b + L.Y_X] = position_m
         y[b + L.Y_SD], y[b + L.Y_SE] = pd, pe
         d = np.zeros(L.ND)

@@ -71,7 +71,8 @@ class Conditions:
         return rig.with_(
             friction={"static_n": f.static_n * s, "coulomb_n": f.coulomb_n * s,
                       "viscous_n_s_per_m": f.viscous_n_s_per_m * s},
-            valve={"delay_s": rig.valve_delay_s * self.valve_delay_scale})
+            # the delay as the plant uses it (the rig's own scale included), scaled once
+            valve={"delay_s": rig.valve_delay_s * self.valve_delay_scale, "delay_scale": 1.0})
 
     def physics_key(self) -> tuple[float, ...]:
         """The fields that change the plant's motion (not the sensor noise)."""

@@ -56,6 +56,8 @@ def apply_changes(base: RigParams, changes: tuple[Change, ...]) -> RigParams:
     for path, value in changes:
         g, name = path.split(".", 1)
         groups.setdefault(g, {})[name] = value
+    if "delay_s" in groups.get("valve", {}):
+        groups["valve"]["delay_scale"] = 1.0  # a delay set here is the delay, not scaled again
     return base.with_(**groups)
 
 
