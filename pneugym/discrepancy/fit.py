@@ -36,11 +36,18 @@ DIFF_STEP = 0.05
 RESTARTS = 3
 
 
-def fixed_step(rig: RigParams, cd_max: float) -> RigParams:
-    """``rig`` with the substep fixed at the stable one for the largest discharge coefficient
-    the fit may try, so that every trial runs on the same time grid (an automatic substep
-    would change with the discharge coefficient and jitter the residuals)."""
-    dt, _ = choose_dt(rig.with_(valve={"discharge_coefficient": cd_max}))
+#: fitted fields that speed up the plant's fastest process (orifice flows into small volumes)
+FLOW_PATHS = ("valve.discharge_coefficient", "valve.area_m2", "valve.exhaust_area_m2",
+              "cylinder.port_area_m2")
+
+
+def fixed_step(rig: RigParams, params: Sequence[FitParam]) -> RigParams:
+    """``rig`` with the substep fixed at the stable one for the largest flows the fit may try
+    (every fitted discharge coefficient and area at its upper bound), so that every trial runs
+    on the same time grid (an automatic substep would change with them and jitter the
+    residuals)."""
+    fast = [p for p in params if p.path in FLOW_PATHS]
+    dt, _ = choose_dt(apply(rig, fast, [p.hi for p in fast]))
     return rig.with_(solver={"dt_s": dt})
 
 

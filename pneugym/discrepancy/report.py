@@ -127,7 +127,7 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
         "nominal_params": {p.path: float(v) for p, v in zip(
-            d.nominal_params_, [_read(d.rigs_[d.runs_.index(d.fit_runs_[0])], p.path) for p in d.nominal_params_])},
+            d.nominal_params_, [p.stated(d.rigs_[d.runs_.index(d.fit_runs_[0])]) for p in d.nominal_params_])},
         "gap_before": d.gap_before,
         "gap_after": d.gap_after,
         "gap_reduction": d.gap_reduction,
@@ -148,11 +148,6 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "wall_time_s": d.wall_time_s_,
         "provenance": provenance(),
     })
-
-
-def _read(rig, path: str) -> float:
-    g, name = path.split(".", 1)
-    return float(getattr(getattr(rig, g), name))
 
 
 def write_report(d: FittedDiscrepancy, out: str | Path, plots: bool = True) -> Path:
@@ -193,9 +188,11 @@ def markdown(rep: dict[str, Any]) -> str:
     L += [f"> **Warning: {w}**" for w in rep.get("warnings", [])]
     L += [""] if rep.get("warnings") else []
     L += [f"**Named effect: `{rep['named_effect']}`**", "", rep["decision"], ""]
-    if rep.get("suggested_experiment"):
+    if rep.get("suggested_experiment") and rep.get("ambiguous_between"):
         L += [(f"Suggested experiment to separate {' and '.join(rep['ambiguous_between'])}: "
                f"{rep['suggested_experiment']}"), ""]
+    elif rep.get("suggested_experiment"):
+        L += [f"Suggested experiment (the evidence is short): {rep['suggested_experiment']}", ""]
     g = rep["gaps"]
     L += ["## Gap (NRMSE)", "",
           (f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "
@@ -252,16 +249,19 @@ def markdown(rep: dict[str, Any]) -> str:
             L.append(f"| {r['name']} | {c} | " + " | ".join(cells) + " |")
     if rep["candidates"]:
         L += ["", "## Candidates (best first)", "",
-              "| candidate | passed | score | fit improvement | held-out improvement | F (p) | N_eff | parameters | why not |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| candidate | passed | score | where (share removed per phase) | fit improvement | held-out improvement | F (p) | N_eff | parameters | why not |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     else:
         L += ["", "## Candidates", "", "None fitted: there is no gap to reduce."]
     for c in rep["candidates"]:
         pars = ", ".join(f"{k} = {_fmt(v)} ± {_fmt(c['stderr'].get(k))}" for k, v in c["parameters"].items())
-        L.append(f"| {c['name']} | {_fmt(c['passed'])} | {c['score']:+.3f} | {c['improvement_fit']:+.1%} | "
+        where = ", ".join(f"{PHASE_TEXT[p]} {v:+.0%}" for p, v in c.get("by_phase", {}).items() if abs(v) >= 0.01)
+        L.append(f"| {c['name']} | {_fmt(c['passed'])} | {c['score']:+.3f} | {where or '-'} | {c['improvement_fit']:+.1%} | "
                  f"{_pct(c['improvement_holdout'])} | {_fmt(c['F'], 3)} ({_fmt(c['p_value'], 2)}) | "
                  f"{_fmt(c['n_eff'], 3)} | {pars} | {'; '.join(c['reasons']) or '-'} |")
-    L += ["", "## Fitted parameters", "", "| parameter | as given | calibrated | updated model |", "|---|---|---|---|"]
+    L += ["", "## Fitted parameters", "",
+          "Factors (`x stated`) multiply the value each run's JSON states.", "",
+          "| parameter | as given | calibrated | updated model |", "|---|---|---|---|"]
     for k, v in rep["fitted_params"].items():
         L.append(f"| {k} | {_fmt(rep['nominal_params'].get(k))} | {_fmt(rep['calibrated_params'].get(k))} | {_fmt(v)} |")
     L += ["", (f"Updated model (load with `RigParams.from_dict(json.load(open(path)))`): "

@@ -40,7 +40,7 @@ from .candidates import (
     FitParam,
     apply,
     nominal_params,
-    read,
+    exposing_experiment,
     separating_experiment,
 )
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
@@ -49,6 +49,8 @@ from .report import write_report
 from .residuals import (
     NO_GAP,
     NOISE_FLOOR,
+    PHASE_TEXT,
+    PHASES,
     RunPhases,
     estimate_noise,
     localise,
@@ -106,6 +108,7 @@ class CandidateResult:
     improvement_fit: float
     improvement_holdout: float | None
     score: float
+    by_phase: dict[str, float]  # share of the calibrated model's SSR (all runs) removed per phase
     checks: dict[str, bool | None]
     passed: bool
     reasons: list[str]
@@ -141,12 +144,17 @@ class Discrepancy:
     progress : show a tqdm progress bar.
     max_samples : most samples per run after windowing; longer windows are block-averaged
         (see :mod:`pneugym.discrepancy.prepare`).
+    calibrate : ``"extended"`` (default: the discharge coefficient and friction, and the valve
+        delay, exhaust and port areas and cushion length as factors on the stated values) or
+        ``"basic"`` (the discharge coefficient and friction only); see
+        :func:`~pneugym.discrepancy.candidates.nominal_params`.
     """
 
     def __init__(self, candidates: Iterable[str | Candidate] | None = None, holdout: str | None = "auto",
                  n_starts: int = 4, n_probe: int = 24, max_nfev: int = 40, alpha: float = 0.01,
                  min_improvement: float = 0.1, z_min: float = 3.0, seed: int = 0,
-                 n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES):
+                 n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES,
+                 calibrate: str = "extended"):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -157,6 +165,9 @@ class Discrepancy:
                 raise ValueError(f"unknown candidate {c!r}; choose from {sorted(CANDIDATES)}")
         if not cands:
             raise ValueError("at least one candidate is needed")
+        if calibrate not in ("extended", "basic"):
+            raise ValueError(f"Discrepancy calibrate = {calibrate!r} must be 'extended' or 'basic'")
+        self.calibrate = calibrate
         for name, v, ok in (("n_starts", n_starts, n_starts >= 1), ("n_probe", n_probe, n_probe >= 1),
                             ("max_nfev", max_nfev, max_nfev >= 1),
                             ("alpha", alpha, 0 < alpha < 1),
@@ -183,7 +194,8 @@ class Discrepancy:
         return {"candidates": [c.name for c in self.candidates], "holdout": self.holdout,
                 "n_starts": self.n_starts, "n_probe": self.n_probe, "max_nfev": self.max_nfev,
                 "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
-                "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples}
+                "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples,
+                "calibrate": self.calibrate}
 
     def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
         """Run the workflow on measured runs (or paths to runs / folders of runs).
@@ -204,11 +216,12 @@ class Discrepancy:
         hold = self._choose_holdout()
         self.holdout_runs_ = [r for r in runs if r.name == hold]
         self.fit_runs_ = [r for r in runs if r.name != hold]
-        nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)])
+        nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)],
+                             extended=self.calibrate == "extended")
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
         # use the rigs as the plant builds them (automatic substep)
-        self._fixed = [_for_run(r, fixed_step, g, nom[0].hi) for r, g in zip(runs, self.rigs_)]
+        self._fixed = [_for_run(r, fixed_step, g, nom) for r, g in zip(runs, self.rigs_)]
         fit_idx = [i for i, r in enumerate(runs) if r.name != hold]
         fit_bases = [self._fixed[i] for i in fit_idx]
         rng = np.random.default_rng(self.seed)
@@ -219,7 +232,7 @@ class Discrepancy:
         try:
             # (1) nominal replay, (2) calibration of the nominal parameters
             self.sims_ = {"nominal": [replay(r, g) for r, g in zip(runs, self.rigs_)]}
-            json_vals = np.array([read(fit_bases[0], p.path) for p in nom])
+            json_vals = np.array([p.stated(fit_bases[0]) for p in nom])
             self.no_gap_ = not self._gaps(self.sims_["nominal"])["all"]["overall"] > NO_GAP
             if self.no_gap_:
                 # the JSON's model reproduces every run to round-off: nothing to calibrate,
@@ -412,13 +425,26 @@ class Discrepancy:
             checks["improves_holdout"] = None
         ssr_all1, ssr_all0 = ssr1 + (ssr1h or 0.0), ssr0 + (ssr0h or 0.0)
         score = 1.0 - ssr_all1 / ssr_all0 if ssr_all0 > 0 else 0.0
+        by_phase = self._by_phase(seg0, segs, ssr_all0)
         passed = all(v for v in checks.values() if v is not None)
         return CandidateResult(
             name=cand.name, values=fr.as_dict(), effect=effect, stderr=stderr, z=z, at_bound=at_bound,
             ssr_fit=ssr1, ssr0_fit=ssr0, n_fit=n, kappa=kappa, n_eff=n_eff, F=F, p_value=pval,
             ssr_holdout=ssr1h, ssr0_holdout=ssr0h, n_eff_holdout=neh, holdout_stat=hstat,
             holdout_p=hp, improvement_fit=improvement_fit, improvement_holdout=imp_h, score=score,
-            checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr)
+            by_phase=by_phase, checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr)
+
+    def _by_phase(self, seg0, seg1, total: float) -> dict[str, float]:
+        """Share of the calibrated model's SSR (all runs) that a candidate removes in each phase:
+        where its evidence comes from (the shares sum to its score)."""
+        out = {p: 0.0 for p in PHASES}
+        idx = {r.name: i for i, r in enumerate(self.runs_)}
+        for (name, _, s0), (_, _, s1) in zip(seg0, seg1):
+            lab = self.phases_[idx[name]].labels
+            for k, p in enumerate(PHASES):
+                m = lab == k
+                out[p] += float(s0[m] @ s0[m] - s1[m] @ s1[m])
+        return {p: v / total if total > 0 else 0.0 for p, v in out.items()}
 
     def _decide(self) -> None:
         passed = [c for c in self.candidates_ if c.passed]
@@ -439,6 +465,15 @@ class Discrepancy:
             self.named_effect_ = "none"
             self.decision_ = ("none: no candidate passes every check; the calibrated nominal model "
                               "is kept" + note)
+            short = [c for c in self.candidates_ if c.checks.get("material")
+                     and (c.improvement_holdout is None or c.improvement_holdout > 0)]
+            if short:
+                c = short[0]
+                self.suggestion_ = exposing_experiment(c.name)
+                self.decision_ += (f"; evidence short for {c.name} (it removes {c.score:.0%} of the "
+                                   f"misfit, mostly {PHASE_TEXT[max(c.by_phase, key=c.by_phase.get)]}, "
+                                   f"but fails: {', '.join(k for k, v in c.checks.items() if v is False)}); "
+                                   f"to decide, measure: {self.suggestion_}")
             return
         a = passed[0]
         if len(passed) > 1:
@@ -560,7 +595,10 @@ class Discrepancy:
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
+            where = ", ".join(f"{PHASE_TEXT[p]} {v:+.0%}" for p, v in c.by_phase.items() if abs(v) >= 0.01)
             lines.append(f"  {mark} {c.name:18s} score {c.score:+.3f}  {eff}")
+            if where:
+                lines.append(f"         misfit removed by phase: {where}")
             for r in c.reasons:
                 lines.append(f"         - {r}")
         changed = [p.sentence() for p in self.preparation_ if p.windowed or p.block > 1]

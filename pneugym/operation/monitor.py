@@ -80,8 +80,10 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
             ) -> list[dict[str, Any]]:
     """Run the workflow on ``run_id``'s record at strokes ``every``, ``2 every``, ... (from
     ``first`` to ``last`` if given; checkpoints already in the record are kept). ``workflow``:
-    options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0``). Returns every
-    checkpoint's answer, in order."""
+    options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0`` and
+    ``calibrate="basic"``, the calibration the monitor's published figures were measured with;
+    ``calibrate="extended"`` also frees the valve delay). Returns every checkpoint's answer, in
+    order."""
     from tqdm import tqdm
 
     from pneugym.data import read_runs
@@ -114,7 +116,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 import time
 
                 t0 = time.perf_counter()
-                wf = Discrepancy(**{"seed": 0, **workflow}).fit(runs)
+                wf = Discrepancy(**{"seed": 0, "calibrate": "basic", **workflow}).fit(runs)
                 wall = time.perf_counter() - t0
             effect: dict[str, float] = {}
             cost: dict[str, float] = {}
