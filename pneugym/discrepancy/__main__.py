@@ -49,6 +49,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-samples", type=int, default=MAX_SAMPLES,
                     help=f"most samples per run after windowing; more are block-averaged "
                          f"(default {MAX_SAMPLES})")
+    ap.add_argument("--calibrate", choices=("extended", "basic"), default="extended",
+                    help="nominal parameters calibrated first: extended (default: discharge "
+                         "coefficient, friction, valve delay, exhaust and port areas, cushion "
+                         "length) or basic (discharge coefficient and friction)")
+    ap.add_argument("--hold", action="store_true",
+                    help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
+                         "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
+                         "leakage, heat_transfer, both or none; one report folder per record in --out")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     ap.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                     help="no progress bar")
@@ -68,13 +76,15 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if a.hold:
+        return _hold(a, out)
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
     holdout = None if a.holdout.lower() == "none" else a.holdout
     try:
         d = Discrepancy(names, holdout=holdout, n_starts=a.starts, n_probe=a.probe,
                         max_nfev=a.max_nfev, alpha=a.alpha, min_improvement=a.min_improvement,
                         seed=a.seed, n_jobs=a.jobs, progress=not a.quiet,
-                        max_samples=a.max_samples)
+                        max_samples=a.max_samples, calibrate=a.calibrate)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -104,6 +114,22 @@ def main(argv: list[str] | None = None) -> int:
     print(d.summary())
     print(f"report: {path} (and report.md, plots, updated_model.json) in "
           f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _hold(a: argparse.Namespace, out) -> int:
+    """Every PATH as a hold test; a report folder ``out/NAME`` each."""
+    from .hold import HoldDiscrepancy, read_hold, write_hold_report
+    try:
+        recs = [read_hold(p) for p in a.paths]
+        h = HoldDiscrepancy(alpha=a.alpha, min_improvement=a.min_improvement, seed=a.seed)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for rec in recs:
+        h.fit(rec)
+        path = write_hold_report(h, out / rec.name, plots=not a.no_plots)
+        print(f"{rec.name}: {h.decision_}\n  report: {path}", flush=True)
     return 0
 
 

@@ -1,0 +1,130 @@
+"""Hold tests (pneugym.discrepancy.hold): warm air settling in the plant against the gas law, leak
+against heat settling on simulated records, the public chamber records, and bad input."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pneugym import thesis_rig
+from pneugym.discrepancy.__main__ import main
+from pneugym.discrepancy.cases import FORM_RANGES, make_case
+from pneugym.discrepancy.datasets import ZILLEN_CHAMBERS, zillen_chamber
+from pneugym.discrepancy.hold import HoldDiscrepancy, HoldRecord
+from pneugym.physics import layout as L
+from pneugym.plant import Plant
+
+PA = 101_325.0
+
+
+def test_warm_air_settles_to_the_gas_law():
+    """A closed chamber of air 20 K above ambient, with heat transfer, ends at the pressure the
+    gas law gives for its mass at ambient temperature (the isothermal line shares it)."""
+    rig = thesis_rig(2.5, effects={"heat_transfer_time_constant_s": 0.5})
+    pl = Plant(rig)
+    p0, T, warm = 6e5, rig.gas.ambient_temperature_k, 20.0
+    pl.reset(p_drive_pa=p0, p_exhaust_pa=PA, p_line_pa=p0, position_m=rig.cylinder.stroke_m,
+             T_drive_k=T + warm)
+    tr = pl.run(10.0, [(0.0, 0)], record_dt=0.01)
+    v_ch = pl.P[L.P_V0D] + pl.P[L.P_AP] * rig.cylinder.stroke_m
+    v_line = pl.P[L.NP:].sum()
+    expected = (p0 * v_ch * T / (T + warm) + p0 * v_line) / (v_ch + v_line)
+    assert tr["p_drive"][-1] == pytest.approx(expected, rel=1e-4)
+    assert tr["T_drive"][-1] == pytest.approx(T, abs=1e-3)
+    # without heat transfer the warm air keeps its temperature and the pressure stays
+    pl = Plant(thesis_rig(2.5))
+    pl.reset(p_drive_pa=p0, p_exhaust_pa=PA, p_line_pa=p0, position_m=0.18, T_drive_k=T + warm)
+    assert pl.run(2.0, [(0.0, 0)])["p_drive"][-1] == pytest.approx(p0, rel=1e-6)
+    with pytest.raises(ValueError, match="T_drive_k"):
+        pl.reset(T_drive_k=20.0)  # degrees Celsius given as kelvin
+
+
+def _record(values: dict, seed: int, sigma: float = 50.0) -> HoldRecord:
+    """A 60 s hold at 5 Hz simulated by the hold model itself, with white noise."""
+    t = np.arange(0.0, 60.0, 0.2)
+    tmpl = HoldRecord("template", t, np.full(t.size, 7e5))
+    p = HoldDiscrepancy().simulate(tmpl, {"hold.p_start_pa": 7e5, "hold.t_close_s": 3.0, **values})
+    return HoldRecord(f"sim{seed}", t, p + np.random.default_rng(seed).normal(0.0, sigma, t.size))
+
+
+@pytest.mark.parametrize("values, named", [
+    ({"effects.leak_drive_area_m2": 2e-9}, "leakage"),
+    ({"effects.heat_transfer_time_constant_s": 8.0, "hold.warm_k": 6.0}, "heat_transfer"),
+    ({}, "none"),
+])
+def test_hold_names_what_drains_the_chamber(values, named):
+    h = HoldDiscrepancy(sigma_pa=50.0, n_starts=1).fit(_record(values, seed=len(values)))
+    assert h.named_effect_ == named, h.report_dict()
+    rep = h.report_dict()
+    assert rep["decision"].startswith(named) and rep["holdout_from_s"] == pytest.approx(40.0, abs=0.5)
+    if named == "leakage":
+        fitted = h.models_[("leakage",)].values["effects.leak_drive_area_m2"]
+        assert fitted == pytest.approx(2e-9, rel=0.05)
+        assert rep["leak_per_litre_m2"] == pytest.approx(fitted / (rep["model_volume_m3"] * 1e3))
+    if named == "heat_transfer":
+        v = h.models_[("heat_transfer",)].values
+        assert v["effects.heat_transfer_time_constant_s"] == pytest.approx(8.0, rel=0.15)
+        assert v["hold.warm_k"] == pytest.approx(6.0, rel=0.15)
+
+
+def test_public_chamber_records_load_in_si():
+    for name in ZILLEN_CHAMBERS:
+        rec = zillen_chamber(name)
+        assert 1400 <= rec.t.size <= 1600 and 140.0 <= rec.t[-1] <= 152.0  # s, from ms
+        assert 8.2e5 <= rec.p[0] <= 9.0e5  # Pa absolute, from bar gauge
+        assert "CC0" in rec.source
+    assert zillen_chamber("Ultimaker_020").p[-1] == pytest.approx(1.04e5, rel=0.01)
+    with pytest.raises(ValueError, match="unknown chamber"):
+        zillen_chamber("Steel")
+
+
+def test_bad_hold_records_are_refused(tmp_path):
+    t = np.arange(50.0)
+    with pytest.raises(ValueError, match="absolute"):
+        HoldRecord("gauge", t, np.full(50, 7.0))  # bar given as Pa
+    with pytest.raises(ValueError, match="increase"):
+        HoldRecord("time", t[::-1], np.full(50, 7e5))
+    with pytest.raises(ValueError, match="litres"):
+        HoldRecord("volume", t, np.full(50, 7e5), volume_m3=2.0)
+    with pytest.raises(ValueError, match="length"):
+        HoldRecord("short", t[:5], np.full(5, 7e5))
+    bad = tmp_path / "bad.csv"
+    bad.write_text("0.000;3.8;7.6\nnot;a;row\n")
+    with pytest.raises(ValueError, match="line 2"):
+        zillen_chamber("bad", bad)
+    with pytest.raises(ValueError, match="sigma_pa"):
+        HoldDiscrepancy(sigma_pa=0.0)
+
+
+def test_mismatched_cases_differ_in_form_only():
+    """A case of one seed shares its effect and offsets across forms; the mismatched one has
+    another line, orifice law, cushion, tee and spool (the bench's FORM_RANGES)."""
+    known, matched, _ = make_case("leakage", 1000, "matched")
+    _, mism, runs = make_case("leakage", 1000, "mismatched")
+    assert matched.effects == mism.effects and matched.friction == mism.friction
+    assert matched.valve.discharge_coefficient == mism.valve.discharge_coefficient
+    assert mism.line != known.line and mism.line.tee_volumes
+    assert mism.cylinder.cushion_ramp_m != known.cylinder.cushion_ramp_m
+    assert mism.valve.delay_s is not None and mism.valve.ramp_s != known.valve.ramp_s
+    assert set(FORM_RANGES) == {"line", "orifices", "cushion", "tee", "spool"}
+    stated = known.with_(valve={"delay_s": known.valve_delay_s})  # the JSON writes the delay out
+    assert all(r.rig() == stated for r in runs)  # every JSON states the nominal rig
+    with pytest.raises(ValueError, match="form"):
+        make_case("leakage", 1, "other")
+
+
+def test_hold_through_the_cli(tmp_path, capsys):
+    rec = _record({}, seed=7)
+    path = tmp_path / "chamber.csv"
+    path.write_text("t,p_drive\n" + "\n".join(f"{a:.3f},{b:.1f}" for a, b in zip(rec.t, rec.p)))
+    assert main(["--hold", str(path), "--out", str(tmp_path / "rep"), "--no-progress"]) == 0
+    rep = json.loads((tmp_path / "rep" / "chamber" / "hold.json").read_text())
+    assert rep["named_effect"] == "none" and rep["provenance"]["versions"]
+    assert (tmp_path / "rep" / "chamber" / "hold.png").stat().st_size > 1000
+    assert "Named: `none`" in (tmp_path / "rep" / "chamber" / "hold.md").read_text()
+    assert "chamber: none" in capsys.readouterr().out
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,pressure\n0,1\n")
+    assert main(["--hold", str(bad), "--out", str(tmp_path / "rep2")]) == 2
+    assert "p_drive" in capsys.readouterr().err
