@@ -580,6 +580,8 @@ class RigParams:
                                      f"known: {sorted(keys)}")
                 g, name = keys[key]
                 groups.setdefault(g, {})[name] = value
+        if "delay_s" in groups.get("valve", {}):
+            groups["valve"]["delay_scale"] = 1.0  # the format states the delay itself, scale included
         top = {k: meta[k] for k in MEASUREMENT_TOP_FIELDS if k in meta}
         gas = {k: meta[k] for k in ("ambient_pressure_pa", "ambient_temperature_k") if k in meta}
         if gas:

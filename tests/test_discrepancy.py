@@ -274,6 +274,8 @@ def test_report_files(leak_case):
         assert key in rep
     assert rep["named_effect"] == "leakage"
     assert rep["gap_reduction"] == pytest.approx(1 - rep["gap_after"] / rep["gap_before"])
+    assert rep["relative_params"] == ["valve.delay_scale", "valve.exhaust_area_m2", "cylinder.port_area_m2",
+                                      "cylinder.cushion_length_m"]
     for c in rep["candidates"]:
         assert {"name", "parameters", "score", "passed", "checks"} <= set(c)
     rig = RigParams.from_dict(json.loads(Path(rep["updated_model"]).read_text()))

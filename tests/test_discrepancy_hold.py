@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from pneugym import thesis_rig
+from pneugym import RigParams, thesis_rig
 from pneugym.discrepancy.__main__ import main
 from pneugym.discrepancy.cases import FORM_RANGES, make_case
 from pneugym.discrepancy.datasets import ZILLEN_CHAMBERS, zillen_chamber
@@ -89,12 +89,25 @@ def test_bad_hold_records_are_refused(tmp_path):
         HoldRecord("volume", t, np.full(50, 7e5), volume_m3=2.0)
     with pytest.raises(ValueError, match="length"):
         HoldRecord("short", t[:5], np.full(5, 7e5))
+    with pytest.raises(ValueError, match="ms given as s"):
+        HoldRecord("ms", t * 1000.0, np.full(50, 7e5))
+    with pytest.raises(ValueError, match="ambient"):
+        HoldRecord("vacuum", t, np.full(50, 9e4))
     bad = tmp_path / "bad.csv"
     bad.write_text("0.000;3.8;7.6\nnot;a;row\n")
     with pytest.raises(ValueError, match="line 2"):
         zillen_chamber("bad", bad)
     with pytest.raises(ValueError, match="sigma_pa"):
         HoldDiscrepancy(sigma_pa=0.0)
+
+
+def test_a_scaled_delay_survives_the_measurement_format():
+    """The format writes the delay the plant uses (scale included) and reads it back as the
+    delay: read over a base with a scale, it is not scaled twice."""
+    rig = thesis_rig(2.5).with_(valve={"delay_scale": 1.2})
+    meta = {"rig": rig.to_measurement_rig(), "supply_pressure_gauge_pa": 2.5e5}
+    for base in (None, rig):
+        assert RigParams.from_measurement(meta, base=base).valve_delay_s == pytest.approx(1.2 * 0.185)
 
 
 def test_mismatched_cases_differ_in_form_only():
@@ -119,7 +132,8 @@ def test_hold_through_the_cli(tmp_path, capsys):
     path = tmp_path / "chamber.csv"
     path.write_text("t,p_drive\n" + "\n".join(f"{a:.3f},{b:.1f}" for a, b in zip(rec.t, rec.p)))
     assert main(["--hold", str(path), "--out", str(tmp_path / "rep"), "--no-progress"]) == 0
-    rep = json.loads((tmp_path / "rep" / "chamber" / "hold.json").read_text())
+    rep = json.loads((tmp_path / "rep" / "chamber" / "hold.json").read_text(),
+                     parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
     assert rep["named_effect"] == "none" and rep["provenance"]["versions"]
     assert (tmp_path / "rep" / "chamber" / "hold.png").stat().st_size > 1000
     assert "Named: `none`" in (tmp_path / "rep" / "chamber" / "hold.md").read_text()

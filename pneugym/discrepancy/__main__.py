@@ -56,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--hold", action="store_true",
                     help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
-                         "leakage, heat_transfer, both or none; one report folder per record in --out")
+                         "leakage, heat_transfer, both or none; one report folder per record in --out "
+                         "(of the options, only --alpha, --min-improvement, --seed and --no-plots apply)")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     ap.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                     help="no progress bar")
@@ -126,9 +127,23 @@ def _hold(a: argparse.Namespace, out) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    names = [r.name for r in recs]
+    if len(set(names)) < len(names):
+        print(f"error: two hold records share a name ({', '.join(names)}): each gets the report "
+              f"folder --out/NAME", file=sys.stderr)
+        return 2
     for rec in recs:
-        h.fit(rec)
-        path = write_hold_report(h, out / rec.name, plots=not a.no_plots)
+        try:
+            h.fit(rec)
+        except (SimulationError, ValueError) as exc:
+            print(f"error: hold record {rec.name!r}: {exc} (the plant cannot simulate it)", file=sys.stderr)
+            return 2
+        try:
+            path = write_hold_report(h, out / rec.name, plots=not a.no_plots)
+        except (OSError, ValueError) as exc:
+            print(f"{rec.name}: {h.decision_}")
+            print(f"error: the report could not be written to {out / rec.name}: {exc}", file=sys.stderr)
+            return 2
         print(f"{rec.name}: {h.decision_}\n  report: {path}", flush=True)
     return 0
 

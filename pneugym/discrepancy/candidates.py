@@ -131,8 +131,10 @@ def nominal_params(rig: RigParams, extended: bool = True) -> tuple[FitParam, ...
         out.append(FitParam(f"friction.{name}", lo_f * ref, hi_f * ref, ref, log=True, log_step=0.1,
                             unit=unit, diff_step=0.3 if name == "static_n" else None))
     if extended:
-        out += [FitParam(path, lo, hi, 1.0, log=True, log_step=0.1, unit=unit, relative=True)
-                for path, lo, hi, unit in EXTENDED]
+        for path, lo, hi, unit in EXTENDED:
+            if path == "cylinder.cushion_length_m":  # a cushion stays shorter than half the stroke
+                hi = min(hi, 0.499 * rig.cylinder.stroke_m / rig.cylinder.cushion_length_m)
+            out.append(FitParam(path, lo, hi, 1.0, log=True, log_step=0.1, unit=unit, relative=True))
     return tuple(out)
 
 

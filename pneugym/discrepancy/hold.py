@@ -41,13 +41,16 @@ from ..provenance import provenance
 from scipy.stats import chi2
 
 from .candidates import FitParam
+from .report import _clean
 from .stats import f_test, inflation, lr_test, standard_errors
 from .workflow import z_score
 
 #: the held-out share of the hold (its end)
 HOLDOUT_SHARE = 1.0 / 3.0
-#: a hold shorter than this many samples after closing is refused
+#: a record of fewer samples is refused
 MIN_SAMPLES = 30
+#: a longer record [s] is refused (time in ms given as s?)
+MAX_DURATION_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -72,9 +75,16 @@ class HoldRecord:
             raise ValueError(f"hold record {self.name!r}: t and p must be finite")
         if not (np.diff(t) > 0).all():
             raise ValueError(f"hold record {self.name!r}: times must increase strictly")
+        if t[-1] - t[0] > MAX_DURATION_S:
+            raise ValueError(f"hold record {self.name!r}: it lasts {t[-1] - t[0]:.4g} s, more than "
+                             f"{MAX_DURATION_S:g} s (time in ms given as s?)")
         if not ((p >= 1e4).all() and p.max() <= 1e8):
             raise ValueError(f"hold record {self.name!r}: pressures must be absolute, in Pa "
                              f"(1e4 <= p <= 1e8; bar given as Pa, or gauge?)")
+        if not p[0] > self.ambient_pressure_pa:
+            raise ValueError(f"hold record {self.name!r}: it starts at {p[0]:.6g} Pa, not above the "
+                             f"ambient {self.ambient_pressure_pa:.6g} Pa (a hold test starts pressurised; "
+                             f"gauge given as absolute?)")
         if not (5e4 <= self.ambient_pressure_pa <= 1.2e5):
             raise ValueError(f"hold record {self.name!r}: ambient_pressure_pa "
                              f"{self.ambient_pressure_pa!r} must be in [5e4, 1.2e5] Pa")
@@ -261,8 +271,11 @@ class HoldDiscrepancy:
         self.suggestion_: str | None = None
         if len(passed) == 2:
             a, b = (models[(n,)] for n in passed)
-            stat = (a.n_eff + a.n_eff_holdout) * math.log((b.ssr_fit + b.ssr_holdout)
-                                                          / (a.ssr_fit + a.ssr_holdout))
+            ssr_a, ssr_b = a.ssr_fit + a.ssr_holdout, b.ssr_fit + b.ssr_holdout
+            if ssr_a > 0:
+                stat = (a.n_eff + a.n_eff_holdout) * math.log(ssr_b / ssr_a)
+            else:  # an exact fit: separated from the other unless it fits exactly too
+                stat = math.inf if ssr_b > 0 else 0.0
             self.separation_ = {"best": passed[0], "runner_up": passed[1], "statistic": stat,
                                 "p_value": float(chi2.sf(stat, 1))}
             if self.separation_["p_value"] >= self.alpha:
@@ -300,7 +313,7 @@ class HoldDiscrepancy:
             c, m = self.checks_[n], self.models_[(n,)]
             failed = ", ".join(k for k, v in c["checks"].items() if not v)
             rms = math.sqrt(m.ssr_fit / m.n_fit)
-            return (f"none, evidence short: {n} removes {c['improvement_fit']:.0%} of the misfit "
+            return (f"none, evidence short: {n} removes {c['improvement_fit']:.0%} of the fitted misfit "
                     f"and {c['improvement_holdout']:.0%} on the held-out end, but fails {failed}; "
                     f"its residuals are {rms:.0f} sigma RMS and structured (N_eff = {m.n_eff:.0f} of "
                     f"{m.n_fit} samples): the form of the model does not fit the decay")
@@ -428,7 +441,7 @@ def write_hold_report(h: HoldDiscrepancy, out: str | Path, plots: bool = True) -
         lines += ["", f"Leak (the leakage model): Cd*A = {rep['leak_per_litre_m2']:.3g} m² per litre of chamber"
                   + (f", {rep['leak_area_m2']:.3g} m² for the stated volume" if "leak_area_m2" in rep else "")]
     with staged_files(out) as stage:
-        (stage / "hold.json").write_text(json.dumps(rep, indent=2, default=float))
+        (stage / "hold.json").write_text(json.dumps(_clean(rep), indent=2, allow_nan=False))
         (stage / "hold.md").write_text("\n".join(lines) + "\n")
         if plots:
             import matplotlib

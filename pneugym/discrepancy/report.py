@@ -126,6 +126,8 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "candidates": [c.to_json() for c in d.candidates_],
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
+        # these are factors on the value each run's JSON states, not values in the field's unit
+        "relative_params": [p.path for p in d.nominal_params_ if p.relative],
         "nominal_params": {p.path: float(v) for p, v in zip(
             d.nominal_params_, [p.stated(d.rigs_[d.runs_.index(d.fit_runs_[0])]) for p in d.nominal_params_])},
         "gap_before": d.gap_before,

@@ -470,8 +470,8 @@ class Discrepancy:
             if short:
                 c = short[0]
                 self.suggestion_ = exposing_experiment(c.name)
-                self.decision_ += (f"; evidence short for {c.name} (it removes {c.score:.0%} of the "
-                                   f"misfit, mostly {PHASE_TEXT[max(c.by_phase, key=c.by_phase.get)]}, "
+                self.decision_ += (f"; evidence short for {c.name} (it removes "
+                                   f"{c.improvement_fit:.0%} of the fitted runs' misfit, mostly {PHASE_TEXT[max(c.by_phase, key=c.by_phase.get)]}, "
                                    f"but fails: {', '.join(k for k, v in c.checks.items() if v is False)}); "
                                    f"to decide, measure: {self.suggestion_}")
             return
