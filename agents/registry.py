@@ -111,7 +111,7 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
         mine = rig_fields(here)
         trained = apply_changes(trained, tuple((k, mine[k]) for k in family.fields))
         outside = family.outside(here, trained)
-    diff = describe_difference(trained.with_(**point), here)
+    diff = describe_difference(trained.with_(**point), here, largest_first=True)
     if diff or outside:
         what = "; ".join(x for x in (diff, ", ".join(outside)) if x)
         warnings.warn(f"{getattr(policy, 'source', 'the model')} was trained on "

@@ -521,14 +521,25 @@ def _change(x: Any, y: Any) -> str:
     return f"{sx} -> {sy}"
 
 
-def describe_difference(a: RigParams, b: RigParams, limit: int = 6) -> str:
+def describe_difference(a: RigParams, b: RigParams, limit: int = 6, largest_first: bool = False) -> str:
     """One line naming how ``b`` differs from ``a``, at most ``limit`` fields:
     ``"cylinder.dead_volume_m3 2.44e-04 -> 1.00e-04, line.length_m 0.725 -> 2.5 (+3 more)"``;
-    ``""`` when they are equal."""
+    ``""`` when they are equal. Fields in field order, or with ``largest_first`` by relative
+    change (a change from or to zero, or of a text, counts as the largest)."""
     diff = rig_difference(a, b)
+    if largest_first:
+        diff = dict(sorted(diff.items(), key=lambda kv: -_relative_change(*kv[1])))
     parts = [f"{k} {_change(x, y)}" for k, (x, y) in list(diff.items())[:max(limit, 0)]]
     more = f" (+{len(diff) - len(parts)} more)" if len(diff) > len(parts) else ""
     return ", ".join(parts) + more
+
+
+def _relative_change(x: Any, y: Any) -> float:
+    """``|y - x| / max(|x|, |y|)`` for two numbers, 1 otherwise (texts, tuples, None)."""
+    if not (_real(x) and _real(y)):
+        return 1.0
+    big = max(abs(float(x)), abs(float(y)))
+    return abs(float(y) - float(x)) / big if big > 0 else 0.0
 
 
 # ------------------------------------------------------------------------------------------
