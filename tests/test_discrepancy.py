@@ -32,7 +32,13 @@ from pneugym.discrepancy import (
     separating_experiment,
 )
 from pneugym.discrepancy.__main__ import main
-from pneugym.discrepancy.candidates import FitParam, apply, exposing_experiment, nominal_params
+from pneugym.discrepancy.candidates import (
+    EXPOSING_EXPERIMENTS,
+    FitParam,
+    apply,
+    exposing_experiment,
+    nominal_params,
+)
 from pneugym.discrepancy.expansion import expansion_index
 from pneugym.discrepancy.friction import FrictionDiscrepancy
 from pneugym.discrepancy.prepare import (
@@ -129,8 +135,8 @@ def test_fit_param_transforms_and_candidates():
         assert out.valve.exhaust_area_m2 == pytest.approx(0.8 * rig.valve.exhaust_area_m2)
         assert out.cylinder.port_area_m2 == pytest.approx(1.2 * rig.cylinder.port_area_m2)
         assert out.cylinder.cushion_length_m == pytest.approx(0.9 * rig.cylinder.cushion_length_m)
-    for name in CANDIDATES:  # every candidate says what would expose it
-        assert name in exposing_experiment(name) or len(exposing_experiment(name)) > 40
+    assert set(EXPOSING_EXPERIMENTS) == set(CANDIDATES)  # every candidate says what would expose it
+    assert "hold" in exposing_experiment("leakage") and "slow strokes" in exposing_experiment("stribeck_friction")
 
 
 def test_bad_settings_are_refused():
@@ -200,6 +206,25 @@ def test_decision(cands, named, ambiguous):
     if named == "ambiguous":
         assert "longer hold" in d.suggestion_ and "ambiguous" in d.decision_
     assert "held-out" not in d.decision_ or "held-out run included" in d.decision_
+
+
+def test_short_evidence_names_the_candidate_and_the_experiment():
+    """No candidate passes; one removes a material share and improves the held-out run: the
+    answer stays none, and the decision says which, where, why not and what to measure."""
+    near = _cand("heat_transfer", 60000.0, passed=False)
+    near.checks = {"significant": False, "material": True, "improves_holdout": False}
+    near.by_phase = {"trapped": 0.3, "stroke": 0.05}
+    weak = _cand("leakage", 99000.0, passed=False)
+    weak.checks = {"significant": False, "material": False}
+    d = Discrepancy()
+    d.candidates_ = [near, weak]
+    d._decide()
+    assert d.named_effect_ == "none" and d.suggestion_ == exposing_experiment("heat_transfer")
+    assert "evidence short for heat_transfer" in d.decision_ and "trapped air" in d.decision_
+    assert "fails: significant, improves_holdout" in d.decision_
+    near.improvement_holdout = -0.2  # a held-out run made worse is no lead
+    d._decide()
+    assert d.suggestion_ is None and "evidence short" not in d.decision_
 
 
 def test_decision_without_a_held_out_run_says_so():

@@ -106,18 +106,24 @@ class HoldRecord:
                           self.ambient_temperature_k, self.volume_m3, self.source)
 
 
+def _start_pressure(rec: HoldRecord, t_close: float) -> float:
+    """The mean pressure [Pa] up to the closing time (the first sample if none)."""
+    before = rec.t <= t_close
+    return float(rec.p[before].mean()) if before.any() else float(rec.p[0])
+
+
 def _params(name: str, rec: HoldRecord, t_close: float) -> tuple[FitParam, ...]:
-    p0 = float(rec.p[rec.t <= t_close].mean()) if (rec.t <= t_close).any() else float(rec.p[0])
-    span = float(rec.t[-1])
-    return {
-        "nominal": (FitParam("hold.p_start_pa", 0.5 * p0, 1.5 * p0, 0.01 * p0, unit="Pa"),
-                    FitParam("hold.t_close_s", 0.0, 0.8 * span, 1.0, unit="s", diff_step=0.1)),
-        "leakage": (FitParam("effects.leak_drive_area_m2", 0.0, 1e-5, 1e-9, null=0.0, unit="m²",
-                             start=(1e-11, 1e-7)),),
-        "heat_transfer": (FitParam("effects.heat_transfer_time_constant_s", 0.05, 200.0, 1.0, log=True,
-                                   null=0.0, unit="s", start=(0.5, 30.0)),
-                          FitParam("hold.warm_k", 0.0, 60.0, 1.0, null=0.0, unit="K", start=(0.5, 10.0))),
-    }[name]
+    """The fitted parameters of the nominal model or of one candidate."""
+    if name == "nominal":
+        p0 = _start_pressure(rec, t_close)
+        return (FitParam("hold.p_start_pa", 0.5 * p0, 1.5 * p0, 0.01 * p0, unit="Pa"),
+                FitParam("hold.t_close_s", 0.0, 0.8 * float(rec.t[-1]), 1.0, unit="s", diff_step=0.1))
+    if name == "leakage":
+        return (FitParam("effects.leak_drive_area_m2", 0.0, 1e-5, 1e-9, null=0.0, unit="m²",
+                         start=(1e-11, 1e-7)),)
+    return (FitParam("effects.heat_transfer_time_constant_s", 0.05, 200.0, 1.0, log=True,
+                     null=0.0, unit="s", start=(0.5, 30.0)),
+            FitParam("hold.warm_k", 0.0, 60.0, 1.0, null=0.0, unit="K", start=(0.5, 10.0)))
 
 
 @dataclass
@@ -196,7 +202,7 @@ class HoldDiscrepancy:
         params = _params("nominal", rec, t_close) + sum((_params(n, rec, t_close) for n in names), ())
         lo = np.array([q.u_bounds[0] for q in params])
         hi = np.array([q.u_bounds[1] for q in params])
-        p0 = float(rec.p[rec.t <= t_close].mean()) if (rec.t <= t_close).any() else float(rec.p[0])
+        p0 = _start_pressure(rec, t_close)
 
         def resid(u: np.ndarray) -> np.ndarray:
             vals = {q.path: q.from_u(x) for q, x in zip(params, u)}
@@ -347,8 +353,8 @@ class HoldDiscrepancy:
 
     @staticmethod
     def _closing_guess(rec: HoldRecord) -> float:
-        """First guess of the closing time [s]: the last time the pressure is within 3 noise
-        steps of its starting level before it falls for good (0 if it falls from the start)."""
+        """First guess of the closing time [s] (it is fitted afterwards): the sample before the
+        first one more than 3 quantisation steps below the starting level (0 if none)."""
         p = rec.p
         step = HoldDiscrepancy._step(p)
         below = np.flatnonzero(p < p[: max(3, p.size // 100)].mean() - 3 * step)

@@ -16,7 +16,17 @@ from ..provenance import provenance
 from .candidates import FitParam
 from .fit import FitResult
 from .prepare import Preparation
-from .residuals import CHANNELS, PHASE_TEXT, PHASES, UNITS, Finding, RunPhases, channels_of, reduction
+from .residuals import (
+    CHANNELS,
+    PHASE_TEXT,
+    PHASES,
+    UNITS,
+    Finding,
+    RunPhases,
+    channels_of,
+    phase_shares,
+    reduction,
+)
 
 REPORT_FORMAT = "pneugym-discrepancy-report/1"
 NRMSE_DEFINITION = (
@@ -257,7 +267,7 @@ def markdown(rep: dict[str, Any]) -> str:
         L += ["", "## Candidates", "", "None fitted: there is no gap to reduce."]
     for c in rep["candidates"]:
         pars = ", ".join(f"{k} = {_fmt(v)} ± {_fmt(c['stderr'].get(k))}" for k, v in c["parameters"].items())
-        where = ", ".join(f"{PHASE_TEXT[p]} {v:+.0%}" for p, v in c.get("by_phase", {}).items() if abs(v) >= 0.01)
+        where = phase_shares(c.get("by_phase", {}))
         L.append(f"| {c['name']} | {_fmt(c['passed'])} | {c['score']:+.3f} | {where or '-'} | {c['improvement_fit']:+.1%} | "
                  f"{_pct(c['improvement_holdout'])} | {_fmt(c['F'], 3)} ({_fmt(c['p_value'], 2)}) | "
                  f"{_fmt(c['n_eff'], 3)} | {pars} | {'; '.join(c['reasons']) or '-'} |")

@@ -28,6 +28,12 @@ NOISE_FLOOR = {"x": 1e-7, "p_drive": 1.0, "p_exhaust": 1.0, "mdot_supply": 1e-8,
 PHASES = ("before_motion", "stroke", "trapped", "end_supply")
 PHASE_TEXT = {"before_motion": "before motion", "stroke": "stroke with supply",
               "trapped": "trapped air after cut-off", "end_supply": "end of stroke with supply"}
+def phase_shares(by_phase: Mapping[str, float]) -> str:
+    """``"trapped air after cut-off +80%, stroke with supply +5%"``: a candidate's share of the
+    misfit removed per phase (shares under 1 % left out)."""
+    return ", ".join(f"{PHASE_TEXT[p]} {v:+.0%}" for p, v in by_phase.items() if abs(v) >= 0.01)
+
+
 #: the piston counts as moving once it is this far [m] from its first position ...
 MOTION_THRESHOLD_M = 5e-4
 #: ... and as arrived this close [m] to the end of stroke

@@ -56,6 +56,7 @@ from .residuals import (
     localise,
     noise_at_floor,
     nrmse,
+    phase_shares,
     reduction,
     replay,
     run_label,
@@ -595,7 +596,7 @@ class Discrepancy:
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
-            where = ", ".join(f"{PHASE_TEXT[p]} {v:+.0%}" for p, v in c.by_phase.items() if abs(v) >= 0.01)
+            where = phase_shares(c.by_phase)
             lines.append(f"  {mark} {c.name:18s} score {c.score:+.3f}  {eff}")
             if where:
                 lines.append(f"         misfit removed by phase: {where}")
