@@ -38,11 +38,10 @@ from ..params import RigParams, thesis_rig
 from ..physics import layout as L
 from ..plant import Plant, RigWarning, SimulationError
 from ..provenance import provenance
-from scipy.stats import chi2
 
 from .candidates import FitParam
 from .report import _clean
-from .stats import f_test, inflation, lr_test, standard_errors
+from .stats import f_test, inflation, lr_test, separation, standard_errors
 from .workflow import z_score
 
 #: the held-out share of the hold (its end)
@@ -277,13 +276,10 @@ class HoldDiscrepancy:
         self.suggestion_: str | None = None
         if len(passed) == 2:
             a, b = (models[(n,)] for n in passed)
-            ssr_a, ssr_b = a.ssr_fit + a.ssr_holdout, b.ssr_fit + b.ssr_holdout
-            if ssr_a > 0:
-                stat = (a.n_eff + a.n_eff_holdout) * math.log(ssr_b / ssr_a)
-            else:  # an exact fit: separated from the other unless it fits exactly too
-                stat = math.inf if ssr_b > 0 else 0.0
+            stat, p = separation(a.ssr_fit + a.ssr_holdout, b.ssr_fit + b.ssr_holdout,
+                                 a.n_eff + a.n_eff_holdout)
             self.separation_ = {"best": passed[0], "runner_up": passed[1], "statistic": stat,
-                                "p_value": float(chi2.sf(stat, 1))}
+                                "p_value": p}
             if self.separation_["p_value"] >= self.alpha:
                 self.named_effect_ = "ambiguous"
                 self.ambiguous_ = list(passed)

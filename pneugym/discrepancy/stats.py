@@ -73,6 +73,17 @@ def lr_test(ssr0: float, ssr1: float, n_eff: float, dof: int = 1) -> tuple[float
     return s, float(stats.chi2.sf(s, dof))
 
 
+def separation(ssr_a: float, ssr_b: float, n_eff: float) -> tuple[float, float]:
+    """How clearly the better of two fits (``ssr_a`` <= ``ssr_b``) beats the other:
+    ``N_eff ln(SSR_b / SSR_a)`` and its chi-square p-value (1 dof); an exact fit is separated
+    from the other unless that fits exactly too."""
+    if ssr_a > 0:
+        stat = n_eff * float(np.log(ssr_b / ssr_a))
+    else:
+        stat = float("inf") if ssr_b > 0 else 0.0
+    return stat, float(stats.chi2.sf(stat, 1))
+
+
 def standard_errors(jac: np.ndarray, ssr: float, n: int, kappa: float) -> np.ndarray:
     """Standard errors of the fitted (transformed) variables from the weighted residuals'
     Jacobian: ``sqrt(diag(kappa s^2 (J^T J)^-1))``, ``s^2 = SSR / (N - P)``; the inflation

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats as sps
 
 from ..data import MeasuredRun, MeasurementFormatError, read_runs
 from ..outputs import OutputError, check_output_dir
@@ -62,7 +61,7 @@ from .residuals import (
     run_label,
     run_phases,
 )
-from .stats import f_test, inflation, lr_test, standard_errors
+from .stats import f_test, inflation, lr_test, separation, standard_errors
 
 MODELS = ("nominal", "calibrated", "updated")
 #: said wherever a result has had no held-out check
@@ -481,12 +480,7 @@ class Discrepancy:
             b = passed[1]
             ssr_a = a.ssr_fit + (a.ssr_holdout or 0.0)
             ssr_b = b.ssr_fit + (b.ssr_holdout or 0.0)
-            n_eff = a.n_eff + (a.n_eff_holdout or 0.0)
-            if ssr_a > 0:
-                stat = n_eff * float(np.log(ssr_b / ssr_a))
-            else:  # a fits exactly: separated from b unless b does too
-                stat = float("inf") if ssr_b > 0 else 0.0
-            p = float(sps.chi2.sf(stat, 1))
+            stat, p = separation(ssr_a, ssr_b, a.n_eff + (a.n_eff_holdout or 0.0))
             self.separation_ = {"best": a.name, "runner_up": b.name, "statistic": stat, "p_value": p}
             if p >= self.alpha:
                 self.named_effect_ = "ambiguous"
