@@ -3,11 +3,10 @@
 The plant is a numba-jitted simulation of the rig of the 2006 thesis "Energy Saving for Pneumatic
 Actuation using Dynamic Model Prediction"; see ``README.md``.
 """
-import os
 
-# numba's OpenMP threads spin while idle by default; between batched steps that steals the cores
-# the caller (a policy, SB3) needs: measured 10x slower vector steps on a loaded 2-core machine.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# numba's OpenMP threads keep OpenMP's default wait policy (spin briefly, then sleep): with
+# OMP_WAIT_POLICY=PASSIVE, once set here, two threads ran a 64-plant batch only 1.15x faster than
+# one on a quiet 2-core machine (1.75x with the default); see docs/speed.md for a busy machine.
 
 from ._jitcache import configure as _configure_jit_cache  # noqa: E402
 
