@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+import operator
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -113,6 +114,9 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
 )
 REGISTERED_MAX_STEPS = 800  # max_episode_steps of pneugym/CutOff-v0 (4 s at 5 ms)
 _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
+#: The number fields of :class:`Conditions` (``infos["conditions"]`` of the vector env).
+_COND_FIELDS = tuple(k for k in Conditions.__dataclass_fields__ if k != "rig_changes")
+_cond_values = operator.attrgetter(*_COND_FIELDS)
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
 
@@ -279,8 +283,7 @@ class _CutOffCore:
                         "w_stick": float(w_stick)}
         self.reward_mode = reward_mode
         self.conditions: list[Conditions | None] = [None] * n
-        self._cond_arrays = {k: np.zeros(n) for k in Conditions.__dataclass_fields__
-                             if k != "rig_changes"}
+        self._cond_values = np.zeros((n, len(_COND_FIELDS)))  # each episode's, in that order
 
         P, y0, d0 = _template(self.rig)
         self.Y = np.zeros((n, y0.size))
@@ -288,7 +291,7 @@ class _CutOffCore:
         self.D = np.zeros((n, d0.size))
         self.E = np.zeros((n, EP.NE))
         self._W = np.empty((n, K.work_size(P)))  # the plants' work arrays
-        self._starts: dict[tuple, tuple] = {}  # physics key -> (P, y0, d0, t_conv, e_conv)
+        self._starts: dict[tuple, tuple] = {}  # physics key -> rows of P, Y, D, E; datasheet
         self._b = 2 * self.rig.line.n_cells - 1
         self._noise = np.zeros((n, 3))
         self._noise_std = np.zeros((n, 3))
@@ -339,18 +342,36 @@ class _CutOffCore:
         key = cond.physics_key()
         start = self._starts.get(key)
         if start is None:  # (building the rig and hashing it costs ~0.2 ms: once per conditions)
-            params = cond.rig(self.rig)
-            start = (*_template(params),
-                     *conventional_figures(params, cond.dip, period_s=self.control_period_s))
+            start = self._first_start(cond)
             if len(self._starts) >= 4096:
                 self._starts.clear()
             self._starts[key] = start
-        P, y0, d0, t_conv, e_conv = start
-        self.P[i], self.Y[i], self.D[i] = P, y0, d0
-        set_supply_dip(self.P[i], *cond.dip)
-        K.command(self.D[i], self.P[i], 1.0)
-        e = self.E[i]
-        e[:] = 0.0
+        P, y0, d0, e0, datasheet = start
+        self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
+        self.conditions[i] = cond
+        self._cond_values[i] = _cond_values(cond)
+        self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
+                              cond.pressure_noise_pa)
+        k = 0
+        if self.observe_rig:
+            self._extra[i, :N_DATASHEET] = datasheet
+            self._events[i] = np.nan
+            k = len(RIG_OBSERVATION)
+        if self.observe_params:
+            self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
+                              float(self.P[i, L.P_DELAY]) / 0.4)
+        self._status[i] = 0
+
+    def _first_start(self, cond: Conditions) -> tuple:
+        """The rows of ``P, Y, D, E`` that start an episode under ``cond`` (supply dip set, extend
+        commanded, bookkeeping zeroed) and its :func:`datasheet_features` (``observe_rig``):
+        they depend on :meth:`Conditions.physics_key` only, so :meth:`_start` keeps them."""
+        params = cond.rig(self.rig)
+        P, y0, d0 = (a.copy() for a in _template(params))
+        t_conv, e_conv = conventional_figures(params, cond.dip, period_s=self.control_period_s)
+        set_supply_dip(P, *cond.dip)
+        K.command(d0, P, 1.0)
+        e = np.zeros(EP.NE)
         e[EP.E_REV] = float(self.reversible)
         e[EP.E_T_CONV], e[EP.E_E_CONV] = t_conv, e_conv
         e[EP.E_T_LIMIT] = self.time_limit_s
@@ -361,20 +382,8 @@ class _CutOffCore:
         e[EP.E_T_CUT] = -1.0
         e[EP.E_DENSE] = 1.0 if self.reward_mode == "dense" else 0.0
         e[EP.E_PERIOD] = self.control_period_s
-        self.conditions[i] = cond
-        for k, arr in self._cond_arrays.items():
-            arr[i] = getattr(cond, k)
-        self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
-                              cond.pressure_noise_pa)
-        k = 0
-        if self.observe_rig:
-            self._extra[i, :N_DATASHEET] = datasheet_features(cond.rig(self.rig))
-            self._events[i] = np.nan
-            k = len(RIG_OBSERVATION)
-        if self.observe_params:
-            self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
-                              float(self.P[i, L.P_DELAY]) / 0.4)
-        self._status[i] = 0
+        datasheet = datasheet_features(params) if self.observe_rig else None
+        return P, y0, d0, e, datasheet
 
     def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
         """Sense episodes ``rows`` (with noise) and write their observations."""
@@ -707,7 +716,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         return out
 
     def _conditions_info(self) -> dict[str, np.ndarray]:
-        out = {k: arr.copy() for k, arr in self._cond_arrays.items()}
+        out = dict(zip(_COND_FIELDS, self._cond_values.T.copy()))
         changes = np.empty(self.num_envs, dtype=object)  # the rig of each episode (family)
         for i, c in enumerate(self.conditions):
             changes[i] = dict(c.rig_changes) if c is not None else {}
