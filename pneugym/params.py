@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import numbers
 import os
@@ -52,25 +53,38 @@ def _finite(obj: Any) -> None:
     """Every number field must be a finite real number (no NaN, inf, ``None`` unless the field
     allows it, strings, lists); float fields are stored as Python floats (numpy scalars,
     fractions and ints included), so that equal rigs compare and hash equal."""
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        kind = str(f.type)
+    for name, skip, is_str, is_float, none_ok, want in _field_kinds(type(obj)):
+        v = getattr(obj, name)
+        if type(v) is float and not (skip or is_str) and math.isfinite(v):
+            continue  # the common case: a finite Python float, nothing to convert
         if v is None:
-            if "None" in kind:
+            if none_ok:
                 continue
-            want = "a string" if "str" in kind else "a finite number"
-            raise ValueError(f"{type(obj).__name__}.{f.name} = None is invalid: must be {want}")
-        if f.name in _GROUP_NAMES or "tuple" in kind:
+            raise ValueError(f"{type(obj).__name__}.{name} = None is invalid: must be {want}")
+        if skip:
             continue  # groups and tee volumes check themselves
-        if "str" in kind:
+        if is_str:
             if not isinstance(v, str):
-                raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a "
+                raise ValueError(f"{type(obj).__name__}.{name} = {v!r} is invalid: must be a "
                                  f"string")
             continue
         if isinstance(v, (bool, np_bool)) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
-            raise ValueError(f"{type(obj).__name__}.{f.name} = {v!r} is invalid: must be a finite number")
-        if "float" in kind:
-            object.__setattr__(obj, f.name, float(v))
+            raise ValueError(f"{type(obj).__name__}.{name} = {v!r} is invalid: must be a finite number")
+        if is_float:
+            object.__setattr__(obj, name, float(v))
+
+
+@functools.cache
+def _field_kinds(cls: type) -> tuple[tuple[str, bool, bool, bool, bool, str], ...]:
+    """What :func:`_finite` checks of each field of dataclass ``cls`` (read from its annotation
+    once per class): ``(name, skipped, a string, a float, None allowed, what a None needs)``."""
+    out = []
+    for f in fields(cls):
+        kind = str(f.type)
+        skip = f.name in _GROUP_NAMES or "tuple" in kind
+        want = "a string" if "str" in kind else "a finite number"
+        out.append((f.name, skip, "str" in kind, "float" in kind, "None" in kind, want))
+    return tuple(out)
 
 
 def _plausible(obj: Any, name: str, hi: float, hint: str) -> None:

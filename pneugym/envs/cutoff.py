@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+import operator
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -113,6 +114,9 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
 )
 REGISTERED_MAX_STEPS = 800  # max_episode_steps of pneugym/CutOff-v0 (4 s at 5 ms)
 _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
+#: The number fields of :class:`Conditions` (``infos["conditions"]`` of the vector env).
+_COND_FIELDS = tuple(k for k in Conditions.__dataclass_fields__ if k != "rig_changes")
+_cond_values = operator.attrgetter(*_COND_FIELDS)
 OBS_BOUND = 10.0  # the Box is [-10, 10]; observations are clipped to it
 
 
@@ -279,8 +283,7 @@ class _CutOffCore:
                         "w_stick": float(w_stick)}
         self.reward_mode = reward_mode
         self.conditions: list[Conditions | None] = [None] * n
-        self._cond_arrays = {k: np.zeros(n) for k in Conditions.__dataclass_fields__
-                             if k != "rig_changes"}
+        self._cond_values = np.zeros((n, len(_COND_FIELDS)))  # each episode's, in that order
 
         P, y0, d0 = _template(self.rig)
         self.Y = np.zeros((n, y0.size))
@@ -288,7 +291,7 @@ class _CutOffCore:
         self.D = np.zeros((n, d0.size))
         self.E = np.zeros((n, EP.NE))
         self._W = np.empty((n, K.work_size(P)))  # the plants' work arrays
-        self._starts: dict[tuple, tuple] = {}  # physics key -> (P, y0, d0, t_conv, e_conv)
+        self._starts: dict[tuple, tuple] = {}  # physics key -> rows of P, Y, D, E; datasheet
         self._b = 2 * self.rig.line.n_cells - 1
         self._noise = np.zeros((n, 3))
         self._noise_std = np.zeros((n, 3))
@@ -339,18 +342,36 @@ class _CutOffCore:
         key = cond.physics_key()
         start = self._starts.get(key)
         if start is None:  # (building the rig and hashing it costs ~0.2 ms: once per conditions)
-            params = cond.rig(self.rig)
-            start = (*_template(params),
-                     *conventional_figures(params, cond.dip, period_s=self.control_period_s))
+            start = self._first_start(cond)
             if len(self._starts) >= 4096:
                 self._starts.clear()
             self._starts[key] = start
-        P, y0, d0, t_conv, e_conv = start
-        self.P[i], self.Y[i], self.D[i] = P, y0, d0
-        set_supply_dip(self.P[i], *cond.dip)
-        K.command(self.D[i], self.P[i], 1.0)
-        e = self.E[i]
-        e[:] = 0.0
+        P, y0, d0, e0, datasheet = start
+        self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
+        self.conditions[i] = cond
+        self._cond_values[i] = _cond_values(cond)
+        self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
+                              cond.pressure_noise_pa)
+        k = 0
+        if self.observe_rig:
+            self._extra[i, :N_DATASHEET] = datasheet
+            self._events[i] = np.nan
+            k = len(RIG_OBSERVATION)
+        if self.observe_params:
+            self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
+                              float(self.P[i, L.P_DELAY]) / 0.4)
+        self._status[i] = 0
+
+    def _first_start(self, cond: Conditions) -> tuple:
+        """The rows of ``P, Y, D, E`` that start an episode under ``cond`` (supply dip set, extend
+        commanded, bookkeeping zeroed) and its :func:`datasheet_features` (``observe_rig``):
+        they depend on :meth:`Conditions.physics_key` only, so :meth:`_start` keeps them."""
+        params = cond.rig(self.rig)
+        P, y0, d0 = (a.copy() for a in _template(params))
+        t_conv, e_conv = conventional_figures(params, cond.dip, period_s=self.control_period_s)
+        set_supply_dip(P, *cond.dip)
+        K.command(d0, P, 1.0)
+        e = np.zeros(EP.NE)
         e[EP.E_REV] = float(self.reversible)
         e[EP.E_T_CONV], e[EP.E_E_CONV] = t_conv, e_conv
         e[EP.E_T_LIMIT] = self.time_limit_s
@@ -361,27 +382,17 @@ class _CutOffCore:
         e[EP.E_T_CUT] = -1.0
         e[EP.E_DENSE] = 1.0 if self.reward_mode == "dense" else 0.0
         e[EP.E_PERIOD] = self.control_period_s
-        self.conditions[i] = cond
-        for k, arr in self._cond_arrays.items():
-            arr[i] = getattr(cond, k)
-        self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
-                              cond.pressure_noise_pa)
-        k = 0
-        if self.observe_rig:
-            self._extra[i, :N_DATASHEET] = datasheet_features(cond.rig(self.rig))
-            self._events[i] = np.nan
-            k = len(RIG_OBSERVATION)
-        if self.observe_params:
-            self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
-                              float(self.P[i, L.P_DELAY]) / 0.4)
-        self._status[i] = 0
+        datasheet = datasheet_features(params) if self.observe_rig else None
+        return P, y0, d0, e, datasheet
 
     def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
         """Sense episodes ``rows`` (with noise) and write their observations."""
-        if self._noise_std[rows].any():
-            self._noise[rows] = rng.standard_normal((rows.size, 3)) * self._noise_std[rows]
+        sel = slice(None) if rows is self._all else rows  # all of them: views, not copies
+        std = self._noise_std[sel]
+        if std.any():
+            self._noise[sel] = rng.standard_normal((rows.size, 3)) * std
         else:  # (never a noisy episode's last draw left on a noise-free one)
-            self._noise[rows] = 0.0
+            self._noise[sel] = 0.0
         EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
                    fresh, self._hist, self._extra, OBS_BOUND, self._obs)
         if self.observe_rig:
@@ -434,20 +445,20 @@ class _CutOffCore:
     def _step_info(self, i: int) -> dict[str, Any]:
         y, d = self.Y[i], self.D[i]
         pd, pe, _, _ = K.chamber_pressures(y, self.P[i], self._b)
-        m = self._measured(np.array([i]))[0]
+        mx, mpd, mpe = self._measured(i)
         return {"time_s": float(d[L.D_T]), "position_m": float(y[self._b + L.Y_X]),
                 "p_drive_pa": float(pd), "p_exhaust_pa": float(pe),
                 "supply_cut": bool(self.E[i, EP.E_CUT] > 0.0),
-                "measured_x_m": float(m[0]), "measured_p_drive_pa": float(m[1]),
-                "measured_p_exhaust_pa": float(m[2])}
+                "measured_x_m": float(mx), "measured_p_drive_pa": float(mpd),
+                "measured_p_exhaust_pa": float(mpe)}
 
-    def _measured(self, rows: np.ndarray) -> np.ndarray:
-        """What the sensors of episodes ``rows`` read at the last observation (B, 3): position
-        [m], driving and exhaust port pressures [Pa absolute], noise included (what a
-        :class:`pneugym.deploy.Controller` on the rig would be fed)."""
-        b = self._b
-        return np.stack([self.Y[rows, b + L.Y_X], self.Y[rows, b + L.Y_SD],
-                         self.Y[rows, b + L.Y_SE]], axis=1) + self._noise[rows]
+    def _measured(self, rows: int | slice) -> tuple[Any, Any, Any]:
+        """What the sensors of episode(s) ``rows`` (an index or a slice) read at the last
+        observation: position [m], driving and exhaust port pressures [Pa absolute], noise
+        included (what a :class:`pneugym.deploy.Controller` on the rig would be fed)."""
+        b, Y, noise = self._b, self.Y, self._noise
+        return (Y[rows, b + L.Y_X] + noise[rows, 0], Y[rows, b + L.Y_SD] + noise[rows, 1],
+                Y[rows, b + L.Y_SE] + noise[rows, 2])
 
     def _final_info(self, i: int) -> dict[str, Any]:
         """The episode's figures (``info`` of its last step)."""
@@ -611,6 +622,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         self._rngs: list[np.random.Generator] = []
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._info = np.zeros((self.num_envs, 4))
+        self._before = (np.empty_like(self.Y), np.empty_like(self.D), np.empty_like(self.E))
         self._all = np.arange(self.num_envs)
 
     def reset(self, *, seed: int | list[int] | None = None,
@@ -642,11 +654,13 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         if not self._rngs:
             raise RuntimeError("call reset() before step()")
         acts = check_actions(actions, self.num_envs)
-        before = (self.Y.copy(), self.D.copy(), self.E.copy())
+        Yb, Db, Eb = self._before  # the state before the step, for a retry
+        np.copyto(Yb, self.Y)
+        np.copyto(Db, self.D)
+        np.copyto(Eb, self.E)
         EP.step_batch(self.Y, self.P, self.D, self.E, acts, self._rewards, self._status, self._W)
         for i in np.flatnonzero(self._status):
-            self._rewards[i] = self._retry(i, int(acts[i]), before[0][i], before[1][i],
-                                           before[2][i])
+            self._rewards[i] = self._retry(i, int(acts[i]), Yb[i], Db[i], Eb[i])
         self._check_status()
         self._steps += 1
         self._observe(self._all, self.np_random, fresh=False)
@@ -661,7 +675,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         ended = np.flatnonzero((terminated | truncated) & ~self._idle)
         extra: dict[str, Any] = {}
         if ended.size:
-            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_obs = np.empty(self.num_envs, dtype=object)  # all None
             finals = {}
             for i in ended:
                 final_obs[i] = self._obs[i].copy()
@@ -691,23 +705,22 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         first = next(iter(finals.values()))
         out: dict[str, Any] = {}
         for key in first:
-            vals = [f[key] for f in finals.values()]
             if key in _MAYBE_NONE:
-                arr = np.full(self.num_envs, None, dtype=object)
+                arr = np.empty(self.num_envs, dtype=object)  # all None
             elif isinstance(first[key], bool):
                 arr = np.zeros(self.num_envs, dtype=bool)
             elif isinstance(first[key], int):
                 arr = np.zeros(self.num_envs, dtype=np.int64)
             else:
                 arr = np.zeros(self.num_envs)
-            for i, v in zip(finals, vals):
-                arr[i] = v
+            for i, f in finals.items():
+                arr[i] = f[key]
             out[key] = arr
             out["_" + key] = mask
         return out
 
     def _conditions_info(self) -> dict[str, np.ndarray]:
-        out = {k: arr.copy() for k, arr in self._cond_arrays.items()}
+        out = dict(zip(_COND_FIELDS, self._cond_values.T.copy()))
         changes = np.empty(self.num_envs, dtype=object)  # the rig of each episode (family)
         for i, c in enumerate(self.conditions):
             changes[i] = dict(c.rig_changes) if c is not None else {}
@@ -717,11 +730,11 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
     def _batch_info(self) -> dict[str, Any]:
         EP.state_info(self.Y, self.P, self.D, self._info)
         mask = np.ones(self.num_envs, dtype=bool)
-        info = {"time_s": self._info[:, 0].copy(), "position_m": self._info[:, 1].copy(),
-                "p_drive_pa": self._info[:, 2].copy(), "p_exhaust_pa": self._info[:, 3].copy(),
+        t, x, pd, pe = self._info.T.copy()
+        info = {"time_s": t, "position_m": x, "p_drive_pa": pd, "p_exhaust_pa": pe,
                 "supply_cut": self.E[:, EP.E_CUT] > 0.0}
-        m = self._measured(self._all)
-        info["measured_x_m"], info["measured_p_drive_pa"], info["measured_p_exhaust_pa"] = m.T.copy()
+        info["measured_x_m"], info["measured_p_drive_pa"], info["measured_p_exhaust_pa"] = (
+            self._measured(slice(None)))
         for k in list(info):
             info["_" + k] = mask
         return info
