@@ -33,7 +33,6 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -49,6 +48,7 @@ from pneugym.discrepancy import CANDIDATES, Discrepancy  # noqa: E402
 from pneugym.discrepancy.cases import FORM_RANGES, FORMS, PERTURB, RANGES, make_case  # noqa: E402
 from pneugym.discrepancy.expansion import expansion_index  # noqa: E402
 from pneugym.discrepancy.friction import FrictionDiscrepancy  # noqa: E402
+from pneugym.parallel import add_arguments as add_parallel_arguments, run_tasks  # noqa: E402
 from pneugym.provenance import provenance  # noqa: E402
 
 EFFECTS = tuple(CANDIDATES)
@@ -91,30 +91,18 @@ def noise_floor_nrmse(d: Discrepancy) -> float:
 
 
 def run_matrix(n_cases: int, n_controls: int, kw: dict, form: str = "matched", workers: int = 1,
-               seed_offset: int = 0) -> dict:
+               seed_offset: int = 0, ray_address: str | None = None) -> dict:
     cases = [(e, seed_offset + 1000 * (i + 1) + k) for k, e in enumerate(EFFECTS) for i in range(n_cases)]
     cases += [("none", seed_offset + 7000 + i) for i in range(n_controls)]
     args = [(e, s, form, kw) for e, s in cases]
-    rows = []
-    with ProcessPoolExecutor(workers) if workers > 1 else _Serial() as ex:
-        for n, row in enumerate(ex.map(run_case, args), 1):
-            rows.append(row)
-            print(f"[{n:2d}/{len(cases)}] {row['truth']:18s} seed {row['seed']:5d} {row['supply_bar']:.1f} bar -> "
-                  f"{row['named']:18s} gap {row['gap_before']:.4f} -> {row['gap_after']:.4f} "
-                  f"({row['gap_reduction']:+.0%}; vs calibrated {row['gap_reduction_vs_calibrated']:+.0%}; "
-                  f"noise floor {row['noise_floor']:.4f}) {row['wall_s']:5.1f} s", flush=True)
+    rows = run_tasks(run_case, [{"args": a} for a in args], workers, ray_address, desc="cases",
+                     pythonpath=[str(Path(__file__).resolve().parent)])
+    for n, row in enumerate(rows, 1):
+        print(f"[{n:2d}/{len(cases)}] {row['truth']:18s} seed {row['seed']:5d} {row['supply_bar']:.1f} bar -> "
+              f"{row['named']:18s} gap {row['gap_before']:.4f} -> {row['gap_after']:.4f} "
+              f"({row['gap_reduction']:+.0%}; vs calibrated {row['gap_reduction_vs_calibrated']:+.0%}; "
+              f"noise floor {row['noise_floor']:.4f}) {row['wall_s']:5.1f} s", flush=True)
     return summarise(rows)
-
-
-class _Serial:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def map(self, fn, items):
-        return map(fn, items)
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -239,8 +227,7 @@ def main(argv=None) -> int:
     ap.add_argument("--form", choices=FORMS, default="matched",
                     help="matched: the data have the model's form; mismatched: the data come from other "
                          "plant options (line, orifices, cushions, tee, spool) than the fitted model")
-    ap.add_argument("--workers", type=int, default=1,
-                    help="cases run in this many processes (then use --jobs 1); the result is the same")
+    add_parallel_arguments(ap, "the cases (then use --jobs 1)")
     ap.add_argument("--seed-offset", type=int, default=0,
                     help="added to every case's seed: 0 for the cases the workflow was developed on, "
                          "50000 for the reported mismatched-form bench (held out from development)")
@@ -251,12 +238,14 @@ def main(argv=None) -> int:
     kw = dict(seed=0, n_jobs=a.jobs)
     only = set(a.only.split(","))
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
-                            "form": a.form, "seed_offset": a.seed_offset, "form_ranges": FORM_RANGES if a.form == "mismatched" else None,
+                            "form": a.form, "seed_offset": a.seed_offset,
+                            "workers": a.workers, "ray_address": a.ray_address, "form_ranges": FORM_RANGES if a.form == "mismatched" else None,
                             "nominal_perturbation": PERTURB, "workflow": Discrepancy(**kw).config()},
                  "provenance": provenance()}
     t0 = time.perf_counter()
     if "matrix" in only:
-        res["matrix"] = run_matrix(a.cases, a.controls, kw, a.form, a.workers, a.seed_offset)
+        res["matrix"] = run_matrix(a.cases, a.controls, kw, a.form, a.workers, a.seed_offset,
+                                   a.ray_address)
     if "real" in only:
         res["real"] = run_real(kw)
     if "runtime" in only:

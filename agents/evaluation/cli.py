@@ -32,6 +32,7 @@ import sys
 from typing import Any, Sequence
 
 from pneugym.outputs import check_output_dir
+from pneugym.parallel import add_arguments as add_parallel_arguments
 from pneugym.rigfile import as_rig
 
 from .outputs import print_table, write_outputs
@@ -67,6 +68,7 @@ def parser() -> argparse.ArgumentParser:
                          "runs as it is, with a warning naming the differences")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bars (evaluation, and training on demand)")
+    add_parallel_arguments(ap, "the (suite, policy) pairs")
     return ap
 
 
@@ -76,6 +78,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ``--runs``, ``--out``) exits 2 with the message."""
     ap = parser()
     args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers {args.workers}: must be >= 1")
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1 (episodes per condition cell)")
     if not 0 <= args.seed < 2 ** 63:
@@ -96,7 +100,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     policies = resolve_learned(args.policies, args.runs, args.budget, progress,
                                env_config.get("rig"))
     results = evaluate(policies, suites, args.episodes, args.seed, env_config=env_config,
-                       preloaded=preloaded, progress=progress)
+                       preloaded=preloaded, progress=progress, workers=args.workers,
+                       ray_address=args.ray_address)
     print_table(results)
     write_outputs(results, args.out)
     print(f"\nwrote {args.out}/results.json, results.csv and plots")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -16,6 +17,7 @@ import pneugym  # noqa: F401  (registers the environment)
 from agents.base import Policy, run_first_episodes
 from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
+from pneugym.parallel import backend_name, run_tasks
 from pneugym.provenance import provenance
 
 from .specs import check_policy_specs, evaluation_env_config, make_named_policy, parse_spec
@@ -50,35 +52,63 @@ def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str
     }
 
 
+def _absolute(spec: str) -> str:
+    """``spec`` with its model path made absolute (a worker may run in another folder)."""
+    path = parse_spec(spec)[1]
+    return spec if path is None else spec.replace(path, str(Path(path).resolve()), 1)
+
+
+def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: dict,
+                   policy: Policy | None = None) -> tuple[str, list[dict[str, Any]], float]:
+    """``(name, per-episode records, wall time [s])`` of one policy on one suite (a task of
+    :func:`pneugym.parallel.run_tasks` when evaluation runs in parallel). ``policy``: already
+    loaded, else built or loaded from ``spec``."""
+    probe = CutOffVectorEnv(num_envs=1, **env_config)
+    eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+    name = parse_spec(spec)[0]
+    if policy is None:
+        name, policy = make_named_policy(spec, probe)
+    t0 = time.perf_counter()
+    out = run_policy(policy, [c for _, c in eps], env_config, seed)
+    wall = time.perf_counter() - t0
+    return name, [{"suite": suite, "policy": name, "condition": label, "episode": i,
+                   **{k: _py(v[i]) for k, v in out.items()}, **_conditions(label, c)}
+                  for i, (label, c) in enumerate(eps)], wall
+
+
 def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
              env_config: dict | None = None,
-             preloaded: Mapping[str, Policy] | None = None, progress: bool = True
-             ) -> dict[str, Any]:
+             preloaded: Mapping[str, Policy] | None = None, progress: bool = True,
+             workers: int = 1, ray_address: str | None = None) -> dict[str, Any]:
     """Run every policy on every suite; returns the results.json structure. ``preloaded``:
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
-    ``progress``: a progress bar over the policies of each suite."""
+    ``progress``: a progress bar over the policies of each suite. ``workers`` /
+    ``ray_address``: every (suite, policy) pair as a task of :func:`pneugym.parallel.run_tasks`
+    (each worker loads its model from the spec's path; the numbers are the same)."""
     env_config = evaluation_env_config(env_config)
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)
     preloaded = dict(preloaded or {})
     results: dict[str, Any] = {"suites": {}}
+    parallel = backend_name(workers, ray_address) != "serial"
+    done: dict[tuple[str, str], tuple[str, list[dict[str, Any]], float]] = {}
+    if parallel:
+        pairs = [(suite, spec) for suite in suites for spec in names]
+        outs = run_tasks(policy_records, [
+            {"spec": _absolute(spec), "suite": suite, "episodes": episodes, "seed": seed,
+             "env_config": env_config} for suite, spec in pairs], workers, ray_address,
+            progress, desc="evaluation")
+        done = dict(zip(pairs, outs))
     for suite in suites:
         eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
-        conds = [c for _, c in eps]
         records: dict[str, list[dict[str, Any]]] = {}
         wall: dict[str, float] = {}
-        for spec in tqdm(names, desc=f"{suite} suite", unit="policy", disable=not progress):
+        for spec in tqdm(names, desc=f"{suite} suite", unit="policy",
+                         disable=not progress or parallel):
             name = parse_spec(spec)[0]
-            name, pol = (name, preloaded[name]) if name in preloaded else make_named_policy(
-                spec, probe)
-            t0 = time.perf_counter()
-            out = run_policy(pol, conds, env_config, seed)
-            wall[name] = time.perf_counter() - t0
-            records[name] = [
-                {"suite": suite, "policy": name, "condition": label, "episode": i,
-                 **{k: _py(v[i]) for k, v in out.items()}, **_conditions(label, c)}
-                for i, (label, c) in enumerate(eps)]
+            name, records[name], wall[name] = done.get((suite, spec)) or policy_records(
+                spec, suite, episodes, seed, env_config, preloaded.get(name))
         conv_ret = _mean([r["objective"] for r in records["conventional"]])
         orc_ret = _mean([r["objective"] for r in records["oracle"]])
         labels = list(dict.fromkeys(label for label, _ in eps))

@@ -9,6 +9,9 @@ examples:
   pneugym train --algo ppo --budget quick            # the quick budget of configs/ppo.yaml
   pneugym train --algo ppo --set algo.learning_rate=1e-4 --set env.history=8
   pneugym train --algo esac --rig my_rig.yaml --out runs/my_rig/esac   # for your rig
+  pneugym train --algo esac --seeds 0-4 --workers 2 --out runs/esac-seeds   # 5 seeds, 2 processes
+  pneugym train --algo esac --seeds 0-4 --ray-address auto --out /shared/runs  # on a Ray cluster
+  pneugym train --algo ppo --tune space.yaml --trials 20 --workers 2 --out runs/ppo-tune
   python train.py --algo ppo                         # the same command, from a checkout
 
 Hyperparameters live in ``configs/<algo>.yaml`` (a ``default`` budget and a ``quick`` one that
@@ -39,6 +42,8 @@ import argparse
 import signal
 import sys
 from typing import Any, Sequence
+
+from pneugym.parallel import add_arguments as add_parallel_arguments
 
 from .config import ALGOS
 from .rundir import RUN_FILE
@@ -73,6 +78,15 @@ def parser() -> argparse.ArgumentParser:
                     help="--resume of a DQN run from an older pneugym: load its pickled replay "
                          "buffer (a pickle can run code: only for your own runs)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    sw = ap.add_argument_group("several runs at once: --seeds (results in <out>/sweep.json) or "
+                              "--tune (<out>/tune.json)")
+    sw.add_argument("--seeds", default=None, metavar="LIST",
+                    help="train one run per seed into <out>/seed_<s>, e.g. 0-4 or 0,3,7")
+    add_parallel_arguments(sw, "the runs of --seeds or the trials of --tune")
+    sw.add_argument("--tune", default=None, metavar="SPACE",
+                    help="search hyperparameters in this YAML space with Ray Tune and Optuna "
+                         "(results in <out>/tune.json; see agents/training/tune.py)")
+    sw.add_argument("--trials", type=int, default=20, help="training runs of --tune")
     return ap
 
 
@@ -83,6 +97,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap = parser()
     args = ap.parse_args(argv)
     out = args.out if args.out is not None else f"runs/{args.algo}"  # "" is refused, not replaced
+    if args.tune is not None:
+        return _tune(ap, args, out)
+    if args.seeds is not None or args.workers != 1 or args.ray_address is not None:
+        return _sweep(ap, args, out)
     try:
         run = train(args.algo, out, args.preset, args.timesteps, args.seed, args.resume,
                     args.budget, args.config, args.set, not args.no_progress, args.force,
@@ -104,3 +122,46 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
           f" (validation return {best.get('return', float('nan')):.4f}, oracle fraction "
           f"{'-' if frac is None else f'{frac:.3f}'})")
     return run
+
+
+def _sweep(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> dict[str, Any]:
+    """``--seeds``: one run per seed (:func:`agents.training.sweep.train_seeds`)."""
+    from .sweep import train_seeds, parse_seeds
+
+    if args.seeds is None:
+        ap.error("--workers and --ray-address run several seeds: give --seeds too")
+    if args.resume or args.force:
+        ap.error("--seeds starts new runs into <out>/seed_<s>: --resume and --force take one run")
+    try:
+        sweep = train_seeds(args.algo, out, parse_seeds(args.seeds), args.workers,
+                            args.ray_address, not args.no_progress, preset=args.preset,
+                            timesteps=args.timesteps, budget=args.budget, config=args.config,
+                            overrides=args.set, rig=args.rig)
+    except ValueError as exc:
+        ap.error(str(exc))
+    of = sweep["summary"]["oracle_fraction"]
+    ret = sweep["summary"]["validation_return"]
+    print(f"done in {sweep['wall_s']:.0f} s ({sweep['backend']}): {len(sweep['seeds'])} runs in "
+          f"{out}; validation return {ret['mean']:.4f} +- {ret['std']:.4f}"
+          + (f", oracle fraction {of['mean']:.3f} +- {of['std']:.3f}" if of else "")
+          + f"; {out}/sweep.json")
+    return sweep
+
+
+def _tune(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> dict[str, Any]:
+    """``--tune``: a Ray Tune + Optuna search (:func:`agents.training.tune.tune_hyperparameters`)."""
+    from .tune import tune_hyperparameters
+
+    if args.seeds is not None or args.resume or args.force:
+        ap.error("--tune trains new runs with one --seed: --seeds, --resume and --force do not apply")
+    try:
+        res = tune_hyperparameters(args.algo, out, args.tune, args.trials, args.seed,
+                                   args.workers, args.ray_address, preset=args.preset,
+                                   timesteps=args.timesteps, budget=args.budget,
+                                   config=args.config, overrides=args.set, rig=args.rig)
+    except ValueError as exc:
+        ap.error(str(exc))
+    best = res["best"]
+    print(f"done in {res['wall_s']:.0f} s: {res['trials']} trials; best validation return "
+          f"{best['validation_return']:.4f} with {' '.join(best['overrides'])}; {out}/tune.json")
+    return res
