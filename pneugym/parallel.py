@@ -59,8 +59,8 @@ def run_tasks(fn: Callable[..., Any], tasks: Sequence[Mapping[str, Any]], worker
     ``num_cpus``: CPUs Ray reserves per task (one by default: tasks pin their own threads);
     ``pythonpath``: folders Ray workers import from besides the installed packages (e.g. the
     folder of a script whose functions are the tasks; on a cluster it must exist on every node).
-    The first failing task's exception is raised as soon as it is seen (local tasks not yet
-    started are cancelled)."""
+    The first failing task's exception is raised once it is seen: queued tasks are cancelled
+    (Ray cancels the running ones too; a local process finishes the task it is running)."""
     backend = backend_name(workers, ray_address)
     tasks = [dict(t) for t in tasks]
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
@@ -108,9 +108,10 @@ def ray_init(ray_address: str, workers: int = 1, pythonpath: Sequence[str] = ())
     kw: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False,
                               configure_logging=False)
     if pythonpath:
-        kw["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join(pythonpath)}}
-    if ray_address == "local":
-        ray.init(num_cpus=workers, **kw)
+        path = [*pythonpath, *filter(None, [os.environ.get("PYTHONPATH")])]
+        kw["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join(path)}}
+    if ray_address == "local":  # a new runtime, even where `ray start` left one running
+        ray.init(address="local", num_cpus=workers, **kw)
     else:
         ray.init(address=ray_address, **kw)
 
@@ -124,9 +125,13 @@ def _ray(fn, tasks, workers, ray_address, bar, num_cpus, pythonpath) -> list[Any
     index = {ref: i for i, ref in enumerate(refs)}
     out: list[Any] = [None] * len(tasks)
     pending = list(refs)
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        for ref in done:
-            out[index[ref]] = ray.get(ref)
-            bar.update()
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                out[index[ref]] = ray.get(ref)
+                bar.update()
+    finally:
+        for ref in pending:  # after a failure (or Ctrl-C): nothing keeps running on the cluster
+            ray.cancel(ref, force=True)
     return out

@@ -7,9 +7,11 @@ import json
 import os
 import secrets
 import shutil
+import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -71,12 +73,46 @@ def test_backend_names():
     ("algo.gamma: {normal: [0, 1]}", "expected one of"),
     ("algo.gamma: {uniform: [0.99, 0.9]}", "needs low < high"),
     ("algo.gamma: {uniform: [0.9]}", "takes a list of 2 values"),
-    ("[1, 2]", "expected a mapping")])
+    ("[1, 2]", "expected a mapping"),
+    ("fit.lr: {loguniform: [0, 1.0e-3]}", "needs 0 < low < high"),
+    ("fit.lr: {uniform: [a, 1]}", "takes numbers"),
+    ("env.history: {randint: [2.5, 9]}", "takes integers")])
 def test_tune_space_refused(tmp_path, space, msg):
     f = tmp_path / "space.yaml"
     f.write_text(space)
     with pytest.raises(ValueError, match=msg):
         load_space(f)
+
+
+def test_tune_space_reads_yaml_numbers(tmp_path):
+    f = tmp_path / "space.yaml"
+    f.write_text("fit.lr: {loguniform: [1e-5, 5e-4]}\nenv.history: {randint: [3, 9]}\n"
+                 "fit.hidden: {choice: [[16], [32, 32]]}\n")  # YAML reads 1e-5 as text
+    assert load_space(f) == {"fit.lr": {"loguniform": [1e-5, 5e-4]},
+                             "env.history": {"randint": [3, 9]},
+                             "fit.hidden": {"choice": [[16], [32, 32]]}}
+    with pytest.raises(ValueError, match="cannot read it"):
+        load_space(tmp_path / "missing.yaml")
+
+
+def test_portable_options_make_every_path_absolute(tmp_path, monkeypatch):
+    from pneugym import thesis_rig
+
+    monkeypatch.chdir(tmp_path)
+    thesis_rig().save("rig.json")
+    shutil.copy(Path(__file__).resolve().parents[1] / "configs" / "esac.yaml", "esac.yaml")
+    kw = sweep.portable("esac", {"rig": "rig.json", "config": "esac.yaml", "overrides": []}, [0, 5])
+    assert kw["rig"] == str(tmp_path / "rig.json") and kw["config"] == str(tmp_path / "esac.yaml")
+    assert kw["overrides"] == [f"cache_dir={tmp_path / 'runs' / '.cache'}"]
+    with pytest.raises(ValueError, match="training"):  # every seed is checked, not only the first
+        sweep.portable("esac", {}, [0, 10**9])
+
+
+def test_sweep_refuses_a_seed_folder_in_use(tmp_path):
+    (tmp_path / "seed_3").mkdir()
+    (tmp_path / "seed_3" / "model.pt").write_text("x")
+    with pytest.raises(ValueError, match="seed_3 is not empty"):
+        sweep.train_seeds("esac", tmp_path, [2, 3], progress=False, timesteps=48)
 
 
 def test_task_failure_is_raised():
@@ -92,11 +128,25 @@ def test_evaluation_in_processes_matches_serial():
     assert par["suites"]["nominal"]["episodes"] == serial["suites"]["nominal"]["episodes"]
 
 
+def test_learned_model_in_processes_matches_serial(tmp_path_factory, monkeypatch):
+    """A saved ESAC model, named by a relative path (workers resolve it from this folder),
+    evaluated in 2 processes as in this one (preloaded, as the command line does)."""
+    from agents.evaluation.specs import load_models
+
+    run = trained_runs(tmp_path_factory)["esac"]
+    monkeypatch.chdir(run.parent)
+    kw = {**EVAL, "policies": [f"{run.name}={run.name}", "gaslaw"]}
+    serial = evaluate(**kw, preloaded=load_models(kw["policies"]))
+    par = evaluate(**kw, workers=2)
+    assert _figures(par) == _figures(serial) and run.name in _figures(par)
+
+
 @pytest.fixture(scope="module")
 def ray_head():
     """A Ray head on 127.0.0.1 with 2 CPUs and token authentication (a fresh token in the
     environment of the head and of the clients) for this module's tests: ``(address, env)``.
-    Ray reads its token settings when it is imported, so clients run as subprocesses."""
+    Ray reads its token settings when it is imported, so clients run as subprocesses. The head
+    runs with ``--block`` in a process group of its own, and only that group is stopped."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -104,16 +154,36 @@ def ray_head():
     temp = Path("/tmp") / f"rt{os.getpid()}"  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token",
            "RAY_AUTH_TOKEN": secrets.token_hex(32)}
-    start = [str(ray_bin), "start", "--head", "--node-ip-address", "127.0.0.1", "--port",
-             str(port), "--num-cpus", "2", "--include-dashboard", "false",
-             "--disable-usage-stats", "--temp-dir", str(temp)]
-    subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
+    head = subprocess.Popen(
+        [str(ray_bin), "start", "--head", "--block", "--node-ip-address", "127.0.0.1", "--port",
+         str(port), "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats",
+         "--temp-dir", str(temp)], env=env, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        yield f"127.0.0.1:{port}", env
+        address = f"127.0.0.1:{port}"
+        for _ in range(60):  # until the head answers
+            if subprocess.run([str(ray_bin), "status", "--address", address], env=env,
+                              capture_output=True, timeout=60).returncode == 0:
+                break
+            assert head.poll() is None, "ray start --head exited"
+            time.sleep(1)
+        yield address, env
     finally:
-        subprocess.run([str(ray_bin), "stop", "--force"], capture_output=True, env=env,
-                       timeout=120)
+        os.killpg(head.pid, signal.SIGTERM)
+        try:
+            head.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(head.pid, signal.SIGKILL)
         shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_ray_head_refuses_a_client_without_the_token(ray_head):
+    address, env = ray_head
+    wrong = {**env, "RAY_AUTH_TOKEN": secrets.token_hex(32)}
+    r = subprocess.run([sys.executable, "-c", f"import ray; ray.init(address={address!r})"],
+                       env=wrong, capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0
+    assert "InvalidAuthToken" in r.stderr or "Failed to connect" in r.stderr, r.stderr[-2000:]
 
 
 def _pneugym(env, *args):

@@ -383,3 +383,19 @@ def test_sb3_adapter_takes_per_environment_conditions():
     venv.set_options([{"conditions": c[0]}, {"other": 1}])
     with pytest.raises(ValueError, match="per-environment reset options"):
         venv.reset()
+
+
+def test_settings_changed_between_episodes_apply_to_the_next_one():
+    """Episode starts are cached per conditions; the env's settings (weights, time limit, SB3's
+    set_attr) are not part of that cache and apply to every episode started after the change."""
+    c = Conditions(load_mass_kg=10.0)
+    env = CutOffVectorEnv(num_envs=1, autoreset=False)
+    env.reset(seed=0, options={"conditions": [c]})
+    row = env.E[0].copy()
+    env.weights = {**env.weights, "w_time": env.weights["w_time"] * 2}
+    env.time_limit_s = 3.0
+    env.reset(seed=0, options={"conditions": [c]})
+    from pneugym.envs import episode as EP
+
+    assert env.E[0, EP.E_W_TIME] == 2 * row[EP.E_W_TIME] and env.E[0, EP.E_T_LIMIT] == 3.0
+    assert env.E[0, EP.E_T_CONV] == row[EP.E_T_CONV]  # the cached conventional stroke stays

@@ -54,8 +54,10 @@ def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str
 
 def _absolute(spec: str) -> str:
     """``spec`` with its model path made absolute (a worker may run in another folder)."""
-    path = parse_spec(spec)[1]
-    return spec if path is None else spec.replace(path, str(Path(path).resolve()), 1)
+    name, path, _ = parse_spec(spec)
+    if path is None:
+        return spec
+    return f"{name}={Path(path).resolve()}{spec[len(name) + 1 + len(path):]}"
 
 
 def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: dict,

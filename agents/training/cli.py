@@ -96,7 +96,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     by SIGINT or SIGTERM exits 130 or 143, saying how to continue it."""
     ap = parser()
     args = ap.parse_args(argv)
-    out = args.out if args.out is not None else f"runs/{args.algo}"  # "" is refused, not replaced
+    many = "-tune" if args.tune is not None else "-seeds" if args.seeds is not None else ""
+    out = args.out if args.out is not None else f"runs/{args.algo}{many}"  # "" is refused
+    if args.workers < 1:
+        ap.error(f"--workers {args.workers}: must be >= 1")
     if args.tune is not None:
         return _tune(ap, args, out)
     if args.seeds is not None or args.workers != 1 or args.ray_address is not None:
@@ -129,7 +132,7 @@ def _sweep(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> d
     from .sweep import train_seeds, parse_seeds
 
     if args.seeds is None:
-        ap.error("--workers and --ray-address run several seeds: give --seeds too")
+        ap.error("--workers and --ray-address run several runs: give --seeds (or --tune)")
     if args.resume or args.force:
         ap.error("--seeds starts new runs into <out>/seed_<s>: --resume and --force take one run")
     try:
@@ -139,12 +142,14 @@ def _sweep(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> d
                             overrides=args.set, rig=args.rig)
     except ValueError as exc:
         ap.error(str(exc))
-    of = sweep["summary"]["oracle_fraction"]
-    ret = sweep["summary"]["validation_return"]
+    except KeyboardInterrupt:
+        print(f"sweep interrupted: finished runs stay in {out}/seed_*; train the missing seeds "
+              f"with --seeds into a new --out", file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
+    figs = [f"{k} {v['mean']:.4f} +- {v['std']:.4f}" for k, v in sweep["summary"].items()
+            if v is not None and k != "wall_s"]
     print(f"done in {sweep['wall_s']:.0f} s ({sweep['backend']}): {len(sweep['seeds'])} runs in "
-          f"{out}; validation return {ret['mean']:.4f} +- {ret['std']:.4f}"
-          + (f", oracle fraction {of['mean']:.3f} +- {of['std']:.3f}" if of else "")
-          + f"; {out}/sweep.json")
+          f"{out}; {', '.join(figs) or 'no validation figures'}; {out}/sweep.json")
     return sweep
 
 
@@ -161,7 +166,12 @@ def _tune(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> di
                                    config=args.config, overrides=args.set, rig=args.rig)
     except ValueError as exc:
         ap.error(str(exc))
+    except RuntimeError as exc:  # failed trials: the others are recorded
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(1) from None
     best = res["best"]
+    ret = best["validation_return"]
     print(f"done in {res['wall_s']:.0f} s: {res['trials']} trials; best validation return "
-          f"{best['validation_return']:.4f} with {' '.join(best['overrides'])}; {out}/tune.json")
+          f"{'-' if ret is None else f'{ret:.4f}'} with {' '.join(best['overrides'])}; "
+          f"{out}/tune.json")
     return res

@@ -26,6 +26,9 @@ class TrainingInterrupted(KeyboardInterrupt):
                          f"timesteps")
         self.signal_name, self.timesteps_done, self.run = signal_name, timesteps_done, run
 
+    def __reduce__(self):  # back from a worker process of a sweep
+        return type(self), (self.signal_name, self.timesteps_done, self.run)
+
 
 @contextlib.contextmanager
 def stop_on_signals(stop: StopRequest, graceful: bool = True):

@@ -37,6 +37,27 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
+def portable(algo: str, train_kw: dict[str, Any], seeds: Sequence[int]) -> dict[str, Any]:
+    """``train_kw`` checked for every seed (the whole configuration, as ``train`` checks it),
+    with every path made absolute (``config``, a rig file, the cache folder): a Ray worker runs
+    in another folder than this process."""
+    from .config import load_config
+
+    kw = dict(train_kw)
+    cfg: dict[str, Any] = {}
+    for s in seeds:
+        cfg = load_config(algo, kw.get("budget", "default"), kw.get("config"),
+                          kw.get("overrides", ()), preset=kw.get("preset"),
+                          timesteps=kw.get("timesteps"), seed=s, rig=kw.get("rig"))
+    if kw.get("config") is not None:
+        kw["config"] = str(Path(kw["config"]).resolve())
+    if isinstance(kw.get("rig"), (str, Path)):
+        kw["rig"] = str(Path(kw["rig"]).resolve())
+    cache = Path(cfg.get("cache_dir", "runs/.cache")).resolve()
+    kw["overrides"] = [*kw.get("overrides", ()), f"cache_dir={cache}"]
+    return kw
+
+
 def _one_seed(algo: str, out: str, seed: int, train_kw: dict[str, Any]) -> dict[str, Any]:
     """Train one seed (a task of :func:`pneugym.parallel.run_tasks`); its ``run.json`` content."""
     from .trainer import train
@@ -73,19 +94,17 @@ def train_seeds(algo: str, out: str | Path, seeds: Sequence[int], workers: int =
     from pneugym.parallel import backend_name, run_tasks
     from pneugym.provenance import provenance
 
-    from .config import load_config
-
     backend = backend_name(workers, ray_address)
     if not seeds:
         raise ValueError("--seeds: no seed given")
-    # the configuration is checked once, before any process starts
-    load_config(algo, train_kw.get("budget", "default"), train_kw.get("config"),
-                train_kw.get("overrides", ()), preset=train_kw.get("preset"),
-                timesteps=train_kw.get("timesteps"), seed=seeds[0], rig=train_kw.get("rig"))
+    kw = portable(algo, train_kw, seeds)  # checked before any run starts
+    kw["progress"] = progress and backend == "serial"
     check_output_dir(str(out), "sweep folder (--out)")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    kw = dict(train_kw, progress=progress and backend == "serial")
+    for s in seeds:
+        d = out / f"seed_{s}"
+        if d.exists() and (not d.is_dir() or any(d.iterdir())):
+            raise ValueError(f"{d} is not empty: give a new --out (a sweep starts new runs)")
     tasks = [{"algo": algo, "out": str((out / f"seed_{s}").resolve()), "seed": int(s),
               "train_kw": kw} for s in seeds]
     t0 = time.perf_counter()

@@ -16,25 +16,44 @@ Needs ``pip install "pneugym[ray]"``.
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any, Mapping
 
 from .rundir import atomic_write_json
+from .sweep import portable
 
 TUNE_FILE = "tune.json"
 METRIC = "validation_return"
 _DISTS = {"uniform": 2, "loguniform": 2, "randint": 2, "choice": None}
 
 
+def _number(path, key: str, kind: str, v: Any, integer: bool = False) -> float | int:
+    """A bound of ``kind`` as a number (YAML reads ``1e-5`` as a string)."""
+    try:
+        x = float(v) if not isinstance(v, bool) else float("nan")
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not math.isfinite(x) or (integer and x != int(x)):
+        raise ValueError(f"--tune {path}: {key}: {kind} takes {'integers' if integer else 'numbers'}"
+                         f", got {v!r}")
+    return int(x) if integer else x
+
+
 def load_space(path: str | Path) -> dict[str, dict[str, Any]]:
-    """The search space of ``path`` (see the module docstring), checked."""
+    """The search space of ``path`` (see the module docstring), checked: bounds are numbers
+    (``randint``: integers, ``loguniform``: above 0) with low < high."""
     import yaml
 
-    with open(path) as f:
-        space = yaml.safe_load(f)
+    try:
+        with open(path) as f:
+            space = yaml.safe_load(f)
+    except OSError as exc:
+        raise ValueError(f"--tune {path}: cannot read it ({exc.strerror})") from None
     if not isinstance(space, Mapping) or not space:
         raise ValueError(f"--tune {path}: expected a mapping of config keys to distributions")
+    out = {}
     for key, dist in space.items():
         if not (isinstance(dist, Mapping) and len(dist) == 1 and next(iter(dist)) in _DISTS):
             raise ValueError(f"--tune {path}: {key}: expected one of {sorted(_DISTS)} with its "
@@ -44,9 +63,13 @@ def load_space(path: str | Path) -> dict[str, dict[str, Any]]:
         if not isinstance(args, list) or (n is not None and len(args) != n) or not args:
             raise ValueError(f"--tune {path}: {key}: {kind} takes a list of "
                              f"{n or 'one or more'} values, got {args!r}")
-        if n is not None and not args[0] < args[1]:
-            raise ValueError(f"--tune {path}: {key}: {kind} needs low < high, got {args!r}")
-    return {str(k): dict(v) for k, v in space.items()}
+        if n is not None:
+            args = [_number(path, key, kind, v, kind == "randint") for v in args]
+            if not args[0] < args[1] or (kind == "loguniform" and args[0] <= 0):
+                raise ValueError(f"--tune {path}: {key}: {kind} needs "
+                                 f"{'0 < ' if kind == 'loguniform' else ''}low < high, got {args!r}")
+        out[str(key)] = {kind: args}
+    return out
 
 
 def _ray_space(space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -77,7 +100,8 @@ def _trial(config: dict[str, Any], algo: str, root: str, seed: int,
               progress=False)
     run = train(algo, Path(root) / "trials" / trial, seed=seed, **kw)
     best = run.get("best", {})
-    tune.report({METRIC: float(best.get("return", float("-inf"))),
+    ret = best.get("return")
+    tune.report({METRIC: float(ret) if ret is not None else None,
                  "oracle_fraction": best.get("oracle_fraction"),
                  "stall_rate": best.get("stall_rate"), "wall_s": run.get("total_wall_s")})
 
@@ -98,12 +122,14 @@ def tune_hyperparameters(algo: str, out: str | Path, space_file: str | Path, tri
     check_workers(workers)
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ValueError(f"--trials must be a positive integer, got {trials!r}")
-    for key, dist in space.items():  # every key and value kind is checked before Ray starts
-        (kind, args), = dist.items()
-        load_config(algo, train_kw.get("budget", "default"), train_kw.get("config"),
-                    [*train_kw.get("overrides", ()), f"{key}={args[0]}"],
-                    preset=train_kw.get("preset"), timesteps=train_kw.get("timesteps"),
-                    seed=seed, rig=train_kw.get("rig"))
+    for key, dist in space.items():  # every key with every choice and bound, before Ray starts
+        (_, args), = dist.items()
+        for v in args:
+            load_config(algo, train_kw.get("budget", "default"), train_kw.get("config"),
+                        [*train_kw.get("overrides", ()), f"{key}={v}"],
+                        preset=train_kw.get("preset"), timesteps=train_kw.get("timesteps"),
+                        seed=seed, rig=train_kw.get("rig"))
+    train_kw = portable(algo, train_kw, [seed])  # Tune runs each trial in a folder of its own
     try:
         from ray import tune
         from ray.tune.search.optuna import OptunaSearch
@@ -122,20 +148,24 @@ def tune_hyperparameters(algo: str, out: str | Path, space_file: str | Path, tri
         run_config=tune.RunConfig(storage_path=str(out / "ray_results"), name="tune",
                                   verbose=0))
     grid = tuner.fit()
-    rows = []
+    rows, failed = [], []
     for res in grid:
         if res.error is not None:
-            raise RuntimeError(f"a tuning trial failed: {res.error}")
+            failed.append({"overrides": _overrides(res.config), "error": str(res.error)})
+            continue
         m = res.metrics
         rows.append({"trial": m["trial_id"], "overrides": _overrides(res.config),
                      **{k: m.get(k) for k in (METRIC, "oracle_fraction", "stall_rate",
                                               "wall_s")}})
-    rows.sort(key=lambda r: r[METRIC], reverse=True)
+    rows.sort(key=lambda r: -math.inf if r[METRIC] is None else r[METRIC], reverse=True)
     result = {"algo": algo, "space": space, "trials": trials, "seed": seed, "workers": workers,
               "ray_address": ray_address, "metric": METRIC, "wall_s": time.perf_counter() - t0,
-              "best": rows[0], "results": rows,
+              "best": rows[0] if rows else None, "results": rows, "failed": failed,
               "train_options": {k: (str(v) if isinstance(v, Path) else v)
                                 for k, v in train_kw.items() if k != "rig"},
               "provenance": provenance()}
     atomic_write_json(out / TUNE_FILE, result)
+    if failed:
+        raise RuntimeError(f"{len(failed)} of {trials} tuning trials failed (recorded in "
+                           f"{out / TUNE_FILE}); the first: {failed[0]['error']}")
     return result

@@ -339,7 +339,7 @@ class _CutOffCore:
     # -- episodes --------------------------------------------------------------------------
     def _start(self, i: int, cond: Conditions) -> None:
         """Start episode ``i`` under ``cond``: plant at the extend command, bookkeeping zeroed."""
-        key = cond.physics_key()
+        key = (cond.physics_key(), self.control_period_s)  # (the conventional stroke's period)
         start = self._starts.get(key)
         if start is None:  # (building the rig and hashing it costs ~0.2 ms: once per conditions)
             start = self._first_start(cond)
@@ -348,6 +348,7 @@ class _CutOffCore:
             self._starts[key] = start
         P, y0, d0, e0, datasheet = start
         self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
+        self._settings(self.E[i])  # public attributes a user (or SB3's set_attr) may change
         self.conditions[i] = cond
         self._cond_values[i] = _cond_values(cond)
         self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
@@ -372,18 +373,21 @@ class _CutOffCore:
         set_supply_dip(P, *cond.dip)
         K.command(d0, P, 1.0)
         e = np.zeros(EP.NE)
-        e[EP.E_REV] = float(self.reversible)
         e[EP.E_T_CONV], e[EP.E_E_CONV] = t_conv, e_conv
+        e[EP.E_T_CUT] = -1.0
+        datasheet = datasheet_features(params) if self.observe_rig else None
+        return P, y0, d0, e, datasheet
+
+    def _settings(self, e: np.ndarray) -> None:
+        """The environment's settings into an episode's bookkeeping row ``e``."""
+        e[EP.E_REV] = float(self.reversible)
         e[EP.E_T_LIMIT] = self.time_limit_s
         e[EP.E_WINDOW] = self.decision_window_s
         e[EP.E_W_TIME] = self.weights["w_time"]
         e[EP.E_W_STALL] = self.weights["w_stall"]
         e[EP.E_W_STICK] = self.weights["w_stick"]
-        e[EP.E_T_CUT] = -1.0
         e[EP.E_DENSE] = 1.0 if self.reward_mode == "dense" else 0.0
         e[EP.E_PERIOD] = self.control_period_s
-        datasheet = datasheet_features(params) if self.observe_rig else None
-        return P, y0, d0, e, datasheet
 
     def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
         """Sense episodes ``rows`` (with noise) and write their observations."""
