@@ -23,7 +23,7 @@ from common import ROOT, fmt_table, json_default, machine_info, versions
 
 from agents.training.sweep import parse_seeds, train_seeds
 
-# a small PPO run: long enough that process start-up is not the whole story (about 15 s each)
+# a small PPO run, long enough (about 20 s) that starting a process (about 5 s) is not the whole story
 PPO = ["env.num_envs=8", "env.history=4", "algo.n_steps=128", "algo.batch_size=256",
        "algo.n_epochs=4", "eval_every=4096", "checkpoint_every=8192", "validation.episodes=8"]
 
@@ -34,13 +34,13 @@ def _figures(sw):
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="2 seeds of 4096 steps (else 4 of 8192)")
+    ap.add_argument("--quick", action="store_true", help="2 seeds of 16384 steps (else 4 of 65536)")
     ap.add_argument("--seeds", default=None, help="training seeds (default 0-3, quick 0-1)")
     ap.add_argument("--timesteps", type=int, default=None)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     seeds = parse_seeds(a.seeds or ("0-1" if a.quick else "0-3"))
-    steps = a.timesteps or (4096 if a.quick else 8192)
+    steps = a.timesteps or (16384 if a.quick else 65536)
     scratch = Path(tempfile.mkdtemp(prefix="bench-scale-"))
     kw = dict(timesteps=steps, overrides=[*PPO, f"cache_dir={scratch / 'cache'}"])
     backends = [("serial", 1, None), ("processes", 2, None)]

@@ -723,8 +723,9 @@ class PlantBatch:
         cmds = np.asarray(commands)
         if cmds.shape != (len(self),):
             raise ValueError(f"commands must have shape ({len(self)},), got {cmds.shape}")
-        if cmds.dtype.kind not in "biuf" or not np.isin(cmds, (0, 1)).all():
-            bad = cmds if cmds.dtype.kind not in "biuf" else cmds[~np.isin(cmds, (0, 1))]
+        if cmds.dtype.kind not in "biuf" or not ((cmds == 0) | (cmds == 1)).all():
+            # (np.isin would cost ~15 us a call: a tenth of a 64-plant step on two threads)
+            bad = cmds if cmds.dtype.kind not in "biuf" else cmds[(cmds != 0) & (cmds != 1)]
             raise ValueError(f"commands must be 0 (cut off) or 1 (supply connected); got "
                              f"{bad.ravel()[:5]!r}")
         K.advance_batch(self.Y, self.P, self.D, cmds.astype(np.float64),

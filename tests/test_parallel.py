@@ -243,3 +243,18 @@ def test_tune_on_ray(ray_head, tmp_path, tmp_path_factory):
     run = train("esac", tmp_path / "direct", seed=1, progress=False,
                 **{**_train_kw(root), "overrides": [*small("esac", root), *res["best"]["overrides"]]})
     assert run["best"]["return"] == res["best"]["validation_return"]
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--seeds", "0-1", "--workers", "0"], "--workers 0: must be >= 1"),
+    (["--seeds", "0-1", "--seed", "3"], "list the seeds there"),
+    (["--workers", "2"], "give --seeds"),
+    (["--seeds", "0-1", "--resume"], "--resume and --force take one run"),
+    (["--tune", "missing.yaml"], "cannot read it"),
+    (["--seeds", "2-1"], "expected seeds like")])
+def test_train_command_line_refuses(tmp_path, capsys, args, msg):
+    from agents.training.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--algo", "esac", "--out", str(tmp_path / "out"), *args])
+    assert exc.value.code == 2 and msg in capsys.readouterr().err

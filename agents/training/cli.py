@@ -133,6 +133,8 @@ def _sweep(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> d
 
     if args.seeds is None:
         ap.error("--workers and --ray-address run several runs: give --seeds (or --tune)")
+    if args.seed != 0:
+        ap.error("--seed is one run's seed: with --seeds, list the seeds there")
     if args.resume or args.force:
         ap.error("--seeds starts new runs into <out>/seed_<s>: --resume and --force take one run")
     try:
