@@ -4,9 +4,9 @@ The plant is a numba-jitted simulation of the rig of the 2006 thesis "Energy Sav
 Actuation using Dynamic Model Prediction"; see ``README.md``.
 """
 
-# numba's OpenMP threads keep OpenMP's default wait policy (spin briefly, then sleep): with
-# OMP_WAIT_POLICY=PASSIVE, once set here, two threads ran a 64-plant batch only 1.15x faster than
-# one on a quiet 2-core machine (1.75x with the default); see docs/speed.md for a busy machine.
+# OpenMP's wait policy is left at its default (a waiting thread spins briefly, then sleeps): with
+# OMP_WAIT_POLICY=PASSIVE, which pneugym used to set, two threads ran a 64-plant batch only 1.15x
+# faster than one on a quiet 2-core machine (1.75x with the default); see docs/scale.md.
 
 from ._jitcache import configure as _configure_jit_cache  # noqa: E402
 

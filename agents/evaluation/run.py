@@ -61,12 +61,16 @@ def _absolute(spec: str) -> str:
 
 
 def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: dict,
-                   policy: Policy | None = None) -> tuple[str, list[dict[str, Any]], float]:
+                   policy: Policy | None = None, probe: CutOffVectorEnv | None = None,
+                   eps: list[tuple[str, Conditions]] | None = None
+                   ) -> tuple[str, list[dict[str, Any]], float]:
     """``(name, per-episode records, wall time [s])`` of one policy on one suite (a task of
     :func:`pneugym.parallel.run_tasks` when evaluation runs in parallel). ``policy``: already
-    loaded, else built or loaded from ``spec``."""
-    probe = CutOffVectorEnv(num_envs=1, **env_config)
-    eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+    loaded, else built or loaded from ``spec``; ``probe`` (an environment of ``env_config``)
+    and ``eps`` (the suite's episodes): made here unless given."""
+    probe = probe or CutOffVectorEnv(num_envs=1, **env_config)
+    if eps is None:
+        eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
     name = parse_spec(spec)[0]
     if policy is None:
         name, policy = make_named_policy(spec, probe)
@@ -110,7 +114,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
                          disable=not progress or parallel):
             name = parse_spec(spec)[0]
             name, records[name], wall[name] = done.get((suite, spec)) or policy_records(
-                spec, suite, episodes, seed, env_config, preloaded.get(name))
+                spec, suite, episodes, seed, env_config, preloaded.get(name), probe, eps)
         conv_ret = _mean([r["objective"] for r in records["conventional"]])
         orc_ret = _mean([r["objective"] for r in records["oracle"]])
         labels = list(dict.fromkeys(label for label, _ in eps))

@@ -15,6 +15,8 @@ from .seeds import check_seed
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG_DIR = ROOT / "configs"
+#: Where rollouts and validation references are cached unless ``cache_dir`` says otherwise.
+DEFAULT_CACHE_DIR = "runs/.cache"
 ALGOS = ("ppo", "dqn", "esac")
 
 

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .config import DEFAULT_CACHE_DIR
 from .rundir import atomic_write_json
 from .seeds import check_seed
 from .validation import (choose_decision, oracle_fraction, validation_conditions,
@@ -24,7 +25,7 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     from pneugym.provenance import provenance
 
     history = int(cfg["env"]["history"])
-    cache = Path(cfg.get("cache_dir", "runs/.cache"))
+    cache = Path(cfg.get("cache_dir", DEFAULT_CACHE_DIR))
     n_train = int(cfg["timesteps"])
     test = cfg["test"]
     val = cfg["validation"]

@@ -18,6 +18,7 @@ from pneugym.envs.sb3 import CutOffVecEnv
 
 from .callbacks import AfterEval, Checkpoints, ProgressBar, StopOnRequest
 from .checkpoints import load_checkpoint, restore_replay_buffer
+from .config import DEFAULT_CACHE_DIR
 from .rundir import atomic_save_sb3, checkpoint_of, read_run
 from .seeds import check_seed
 from .signals import StopRequest, TrainingInterrupted
@@ -133,7 +134,7 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     print(f"validation references ({len(conds)} conditions, conventional and oracle) ...",
           flush=True)
     refs = validation_references(conds, sweep_cfg, int(val["seed"]),
-                                 Path(cfg.get("cache_dir", "runs/.cache")))
+                                 Path(cfg.get("cache_dir", DEFAULT_CACHE_DIR)))
     record(validation_references=refs)
     cls = PPO if algo == "ppo" else LatchedDQN
     total = int(cfg["timesteps"])

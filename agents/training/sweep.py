@@ -41,7 +41,7 @@ def portable(algo: str, train_kw: dict[str, Any], seeds: Sequence[int]) -> dict[
     """``train_kw`` checked for every seed (the whole configuration, as ``train`` checks it),
     with every path made absolute (``config``, a rig file, the cache folder): a Ray worker runs
     in another folder than this process."""
-    from .config import load_config
+    from .config import DEFAULT_CACHE_DIR, load_config
 
     kw = dict(train_kw)
     cfg: dict[str, Any] = {}
@@ -53,9 +53,14 @@ def portable(algo: str, train_kw: dict[str, Any], seeds: Sequence[int]) -> dict[
         kw["config"] = str(Path(kw["config"]).resolve())
     if isinstance(kw.get("rig"), (str, Path)):
         kw["rig"] = str(Path(kw["rig"]).resolve())
-    cache = Path(cfg.get("cache_dir", "runs/.cache")).resolve()
+    cache = Path(cfg.get("cache_dir", DEFAULT_CACHE_DIR)).resolve()
     kw["overrides"] = [*kw.get("overrides", ()), f"cache_dir={cache}"]
     return kw
+
+
+def recorded_options(train_kw: dict[str, Any]) -> dict[str, Any]:
+    """``train_kw`` as a results file records it (paths as text; the rig is in the config)."""
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in train_kw.items() if k != "rig"}
 
 
 def _one_seed(algo: str, out: str, seed: int, train_kw: dict[str, Any]) -> dict[str, Any]:
@@ -117,8 +122,7 @@ def train_seeds(algo: str, out: str | Path, seeds: Sequence[int], workers: int =
              "summary": {k: _spread([row[k] for row in rows])
                          for k in ("validation_return", "oracle_fraction", "wall_s")},
              "config": runs[0]["config"] | {"seed": None},
-             "train_options": {k: (str(v) if isinstance(v, Path) else v)
-                               for k, v in train_kw.items() if k != "rig"},
+             "train_options": recorded_options(train_kw),
              "provenance": provenance()}
     atomic_write_json(out / SWEEP_FILE, sweep)
     return sweep

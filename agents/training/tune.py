@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from .rundir import atomic_write_json
-from .sweep import portable
+from .sweep import portable, recorded_options
 
 TUNE_FILE = "tune.json"
 METRIC = "validation_return"
@@ -161,8 +161,7 @@ def tune_hyperparameters(algo: str, out: str | Path, space_file: str | Path, tri
     result = {"algo": algo, "space": space, "trials": trials, "seed": seed, "workers": workers,
               "ray_address": ray_address, "metric": METRIC, "wall_s": time.perf_counter() - t0,
               "best": rows[0] if rows else None, "results": rows, "failed": failed,
-              "train_options": {k: (str(v) if isinstance(v, Path) else v)
-                                for k, v in train_kw.items() if k != "rig"},
+              "train_options": recorded_options(train_kw),
               "provenance": provenance()}
     atomic_write_json(out / TUNE_FILE, result)
     if failed:
