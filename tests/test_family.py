@@ -145,14 +145,15 @@ def test_a_step_that_goes_non_physical_is_retried_with_half_the_substep(monkeypa
     env.reset(seed=0)
     from pneugym.envs import episode as EP
 
-    real, calls = EP.step_batch, []
+    real, calls = EP.step_observe, []
 
-    def failing(Y, P, D, E, acts, rewards, status, W):  # row 1 fails once
-        real(Y, P, D, E, acts, rewards, status, W)
+    def failing(*args):  # row 1 fails once (args[6]: the status of each row)
+        n = real(*args)
         if not calls:
             calls.append(1)
-            status[1] = L.STATUS_NONPOSITIVE
-    monkeypatch.setattr(EP, "step_batch", failing)
+            args[6][1] = L.STATUS_NONPOSITIVE
+        return n
+    monkeypatch.setattr(EP, "step_observe", failing)
     dt = env.P[1, L.P_DT]
     with pytest.warns(RigWarning, match="retried with half the substep"):
         env.step(np.zeros(2, dtype=np.int64))

@@ -178,6 +178,9 @@ def check_action(action: Any) -> int:
 
 def check_actions(actions: Any, n: int) -> np.ndarray:
     """A batch of ``n`` actions, each 0 or 1 (integers), shape exactly ``(n,)``."""
+    if type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,) \
+            and not (actions & -2).any():  # the common case: 0/1 as int64, checked at once
+        return actions.copy()
     a = np.asarray(actions)
     if a.shape != (n,):
         raise ValueError(f"actions must have shape ({n},), one per sub-environment; got shape "
@@ -389,14 +392,18 @@ class _CutOffCore:
         e[EP.E_DENSE] = 1.0 if self.reward_mode == "dense" else 0.0
         e[EP.E_PERIOD] = self.control_period_s
 
-    def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
-        """Sense episodes ``rows`` (with noise) and write their observations."""
+    def _draw_noise(self, rows: np.ndarray, rng: np.random.Generator) -> None:
+        """The sensor noise of episodes ``rows``' next observation."""
         sel = slice(None) if rows is self._all else rows  # all of them: views, not copies
         std = self._noise_std[sel]
         if std.any():
             self._noise[sel] = rng.standard_normal((rows.size, 3)) * std
         else:  # (never a noisy episode's last draw left on a noise-free one)
             self._noise[sel] = 0.0
+
+    def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
+        """Sense episodes ``rows`` (with noise) and write their observations."""
+        self._draw_noise(rows, rng)
         EP.observe(self.Y, self.P, self.D, self.E, rows, self._noise, self._x_prev, self._scales,
                    fresh, self._hist, self._extra, OBS_BOUND, self._obs)
         if self.observe_rig:
@@ -587,7 +594,7 @@ class CutOffEnv(_CutOffCore, gym.Env):
 
 class CutOffVectorEnv(_CutOffCore, VectorEnv):
     """``num_envs`` cut-off episodes stepped together in one parallel jitted call
-    (:func:`pneugym.envs.episode.step_batch`). Same options as :class:`CutOffEnv`, plus
+    (:func:`pneugym.envs.episode.step_observe`). Same options as :class:`CutOffEnv`, plus
     ``max_episode_steps``. Sub-environment ``i`` draws its conditions from its own generator
     (seeded ``seed + i``, as :class:`gymnasium.vector.SyncVectorEnv` does), so it reproduces the
     episodes of a ``CutOffEnv`` reset with ``seed + i``; sensor noise comes from one shared
@@ -625,7 +632,8 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator] = []
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
-        self._info = np.zeros((self.num_envs, 4))
+        self._info = np.zeros((self.num_envs, 8))  # the step info (EP.info_row)
+        self._ones = np.ones(self.num_envs, dtype=bool)
         self._before = (np.empty_like(self.Y), np.empty_like(self.D), np.empty_like(self.E))
         self._all = np.arange(self.num_envs)
 
@@ -658,27 +666,39 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         if not self._rngs:
             raise RuntimeError("call reset() before step()")
         acts = check_actions(actions, self.num_envs)
+        n = self.num_envs
         Yb, Db, Eb = self._before  # the state before the step, for a retry
-        np.copyto(Yb, self.Y)
-        np.copyto(Db, self.D)
-        np.copyto(Eb, self.E)
-        EP.step_batch(self.Y, self.P, self.D, self.E, acts, self._rewards, self._status, self._W)
-        for i in np.flatnonzero(self._status):
-            self._rewards[i] = self._retry(i, int(acts[i]), Yb[i], Db[i], Eb[i])
-        self._check_status()
-        self._steps += 1
-        self._observe(self._all, self.np_random, fresh=False)
-        if self.max_episode_steps is not None:
-            for i in np.flatnonzero((self._steps >= self.max_episode_steps)
-                                    & (self.E[:, EP.E_DONE] == 0.0)):
-                self._rewards[i] += EP.truncate(self.Y[i], self.P[i], self.D[i], self.E[i])
-        done = self.E[:, EP.E_DONE]
-        terminated = done == 1.0
-        truncated = done == 2.0
+        terminated, truncated = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+        # one compiled call steps, senses, limits and reads out every episode (noise drawn first)
+        self._draw_noise(self._all, self.np_random)
+        n_ended = EP.step_observe(
+            self.Y, self.P, self.D, self.E, acts, self._rewards, self._status, self._W,
+            self._noise, self._x_prev, self._scales, self._hist, self._extra, OBS_BOUND,
+            self._obs, self._b, self._info, Yb, Db, Eb, self._steps,
+            self.max_episode_steps or 0, self._idle, terminated, truncated)
+        state_known = True  # self._info holds every episode's step info
+        if self._status.any():  # a step that went non-physical: retried, then sensed
+            state_known = False
+            bad = np.flatnonzero(self._status)
+            for i in bad:
+                self._rewards[i] = self._retry(i, int(acts[i]), Yb[i], Db[i], Eb[i])
+            self._check_status()
+            EP.observe(self.Y, self.P, self.D, self.E, bad, self._noise, self._x_prev,
+                       self._scales, False, self._hist, self._extra, OBS_BOUND, self._obs)
+            for i in bad:
+                if self.max_episode_steps is not None and \
+                        self._steps[i] >= self.max_episode_steps and self.E[i, EP.E_DONE] == 0.0:
+                    self._rewards[i] += EP.truncate(self.Y[i], self.P[i], self.D[i], self.E[i])
+            done = self.E[:, EP.E_DONE]
+            terminated, truncated = done == 1.0, done == 2.0
+            n_ended = 1  # (counted again below)
+        if self.observe_rig:
+            self._observe_events(self._all)
         rewards = self._rewards.copy()
-        ended = np.flatnonzero((terminated | truncated) & ~self._idle)
+        ended = np.flatnonzero((terminated | truncated) & ~self._idle) if n_ended else ()
         extra: dict[str, Any] = {}
-        if ended.size:
+        if len(ended):
+            state_known = False
             final_obs = np.empty(self.num_envs, dtype=object)  # all None
             finals = {}
             for i in ended:
@@ -699,7 +719,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
             extra["_final_obs"] = mask
             extra["final_info"] = self._stack_final(finals, mask)
             extra["_final_info"] = mask
-        infos = {**self._batch_info(), **extra}
+        infos = {**self._batch_info(state_known), **extra}
         return self._obs.copy(), rewards, terminated, truncated, infos
 
     def _stack_final(self, finals: dict[int, dict[str, Any]], mask: np.ndarray
@@ -731,14 +751,16 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         out["rig_changes"] = changes
         return out
 
-    def _batch_info(self) -> dict[str, Any]:
-        EP.state_info(self.Y, self.P, self.D, self._info)
-        mask = np.ones(self.num_envs, dtype=bool)
-        t, x, pd, pe = self._info.T.copy()
+    def _batch_info(self, state_known: bool = False) -> dict[str, Any]:
+        """The step's info: every plant's state and what its sensors read (read out again unless
+        ``state_known``: the step's compiled call left it in ``self._info``)."""
+        if not state_known:
+            EP.info_rows(self.Y, self.P, self.D, self.E, self._noise, self._b, self._info)
+        mask = self._ones.copy()
+        t, x, pd, pe, mx, mpd, mpe, cut = self._info.T.copy()
         info = {"time_s": t, "position_m": x, "p_drive_pa": pd, "p_exhaust_pa": pe,
-                "supply_cut": self.E[:, EP.E_CUT] > 0.0}
-        info["measured_x_m"], info["measured_p_drive_pa"], info["measured_p_exhaust_pa"] = (
-            self._measured(slice(None)))
+                "supply_cut": cut > 0.0, "measured_x_m": mx, "measured_p_drive_pa": mpd,
+                "measured_p_exhaust_pa": mpe}
         for k in list(info):
             info["_" + k] = mask
         return info

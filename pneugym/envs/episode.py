@@ -131,14 +131,6 @@ def truncate(y, P, d, e):
     return _settle(y, P, d, e, 2.0)
 
 
-@njit(cache=True, parallel=True)
-def step_batch(Y, Ps, Ds, Es, actions, rewards, status, W):
-    """:func:`step_one` for every episode of a batch, in parallel (numba ``prange``); ``W``
-    (B, work size): the plants' work arrays."""
-    for i in prange(Y.shape[0]):
-        rewards[i], status[i] = step_one(Y[i], Ps[i], Ds[i], Es[i], actions[i], W[i])
-
-
 # --- observation --------------------------------------------------------------------------------
 NF = 7  # sensor features per sample (documented in pneugym.envs.cutoff.OBSERVATION)
 
@@ -161,6 +153,38 @@ def sense(h, x, x_prev, p_drive, p_exhaust, p_supply, pa, t, cut, period, scales
 
 
 @njit(cache=True)
+def observe_row(i, Y, Ps, Ds, Es, noise, x_prev, scales, fresh, hist, extra, bound, obs):
+    """:func:`observe` for episode ``i``."""
+    k = hist.shape[1]
+    b = 2 * int(Ps[i, P_NCELLS]) - 1
+    pa = Ps[i, P_PA]
+    x = Y[i, b + Y_X] + noise[i, 0]
+    if fresh:
+        x_prev[i] = x
+    else:
+        for s in range(k - 1):
+            for f in range(NF):
+                hist[i, s, f] = hist[i, s + 1, f]
+    sense(hist[i, k - 1], x, x_prev[i], Y[i, b + Y_SD] + noise[i, 1],
+          Y[i, b + Y_SE] + noise[i, 2], Ps[i, P_PS], pa, Ds[i, D_T], Es[i, E_CUT],
+          Es[i, E_PERIOD], scales)
+    h = hist[i, k - 1]
+    x_prev[i] = x
+    if fresh:
+        for s in range(k - 1):
+            for f in range(NF):
+                hist[i, s, f] = h[f]
+    c = 0
+    for s in range(k):
+        for f in range(NF):
+            obs[i, c] = min(max(hist[i, s, f], -bound), bound)
+            c += 1
+    for f in range(extra.shape[1]):
+        obs[i, c] = min(max(extra[i, f], -bound), bound)
+        c += 1
+
+
+@njit(cache=True)
 def observe(Y, Ps, Ds, Es, rows, noise, x_prev, scales, fresh, hist, extra, bound, obs):
     """Sense episodes ``rows`` and write their observations (float32) into ``obs``.
 
@@ -170,44 +194,58 @@ def observe(Y, Ps, Ds, Es, rows, noise, x_prev, scales, fresh, hist, extra, boun
     ``fresh``: a new episode (history filled with this sample, velocity 0);
     ``hist`` (B, k, NF): sample history (updated); ``extra`` (B, m): appended as is;
     every element is clipped to ``[-bound, bound]``."""
-    k = hist.shape[1]
     for j in range(rows.shape[0]):
-        i = rows[j]
-        b = 2 * int(Ps[i, P_NCELLS]) - 1
-        pa = Ps[i, P_PA]
-        x = Y[i, b + Y_X] + noise[i, 0]
-        if fresh:
-            x_prev[i] = x
-        else:
-            for s in range(k - 1):
-                for f in range(NF):
-                    hist[i, s, f] = hist[i, s + 1, f]
-        sense(hist[i, k - 1], x, x_prev[i], Y[i, b + Y_SD] + noise[i, 1],
-              Y[i, b + Y_SE] + noise[i, 2], Ps[i, P_PS], pa, Ds[i, D_T], Es[i, E_CUT],
-              Es[i, E_PERIOD], scales)
-        h = hist[i, k - 1]
-        x_prev[i] = x
-        if fresh:
-            for s in range(k - 1):
-                for f in range(NF):
-                    hist[i, s, f] = h[f]
-        c = 0
-        for s in range(k):
-            for f in range(NF):
-                obs[i, c] = min(max(hist[i, s, f], -bound), bound)
-                c += 1
-        for f in range(extra.shape[1]):
-            obs[i, c] = min(max(extra[i, f], -bound), bound)
-            c += 1
+        observe_row(rows[j], Y, Ps, Ds, Es, noise, x_prev, scales, fresh, hist, extra, bound, obs)
 
 
 @njit(cache=True)
-def state_info(Y, Ps, Ds, out):
-    """Time [s], position [m], driving and exhaust chamber pressures [Pa] of every plant."""
+def info_row(i, Y, Ps, Ds, Es, noise, b, out):
+    """Episode ``i``'s row of the step info ``out`` (B, 8): time [s], position [m], driving and
+    exhaust chamber pressures [Pa absolute]; what its sensors read (position [m], port pressures
+    [Pa absolute], the step's ``noise`` added; ``b`` the layout's line offset); its ``E_CUT``."""
+    pd, pe, vd, ve = chamber_pressures(Y[i], Ps[i], b)
+    out[i, 0] = Ds[i, D_T]
+    out[i, 1] = Y[i, b + Y_X]
+    out[i, 2] = pd
+    out[i, 3] = pe
+    out[i, 4] = Y[i, b + Y_X] + noise[i, 0]
+    out[i, 5] = Y[i, b + Y_SD] + noise[i, 1]
+    out[i, 6] = Y[i, b + Y_SE] + noise[i, 2]
+    out[i, 7] = Es[i, E_CUT]
+
+
+@njit(cache=True)
+def info_rows(Y, Ps, Ds, Es, noise, b, out):
+    """:func:`info_row` for every episode."""
     for i in range(Y.shape[0]):
-        b = 2 * int(Ps[i, P_NCELLS]) - 1
-        pd, pe, vd, ve = chamber_pressures(Y[i], Ps[i], b)
-        out[i, 0] = Ds[i, D_T]
-        out[i, 1] = Y[i, b + Y_X]
-        out[i, 2] = pd
-        out[i, 3] = pe
+        info_row(i, Y, Ps, Ds, Es, noise, b, out)
+
+
+@njit(cache=True, parallel=True)
+def step_observe(Y, Ps, Ds, Es, actions, rewards, status, W, noise, x_prev, scales, hist, extra,
+                 bound, obs, b, info, Yb, Db, Eb, steps, max_steps, idle, terminated, truncated):
+    """One vector step in one compiled call, each episode's whole step on one thread (numba
+    ``prange``): keep its state in ``Yb``, ``Db``, ``Eb`` (for a retry), :func:`step_one`, count
+    the step in ``steps``; then, if the step stayed physical (``status`` 0), :func:`observe`
+    it (not fresh), end it as truncated at ``max_steps`` steps (0: no limit; the reward gains
+    :func:`truncate`'s) and write its :func:`info_row`. Fills ``terminated`` and ``truncated``
+    from ``E_DONE`` and returns how many episodes not ``idle`` ended (a row that failed is the
+    caller's to redo, and its flags with it)."""
+    n_ended = 0
+    for i in prange(Y.shape[0]):
+        Yb[i, :] = Y[i, :]
+        Db[i, :] = Ds[i, :]
+        Eb[i, :] = Es[i, :]
+        rewards[i], status[i] = step_one(Y[i], Ps[i], Ds[i], Es[i], actions[i], W[i])
+        steps[i] += 1
+        if status[i] == STATUS_OK:
+            observe_row(i, Y, Ps, Ds, Es, noise, x_prev, scales, False, hist, extra, bound, obs)
+            if max_steps > 0 and steps[i] >= max_steps and Es[i, E_DONE] == 0.0:
+                rewards[i] += truncate(Y[i], Ps[i], Ds[i], Es[i])
+            info_row(i, Y, Ps, Ds, Es, noise, b, info)
+        done = Es[i, E_DONE]
+        terminated[i] = done == 1.0
+        truncated[i] = done == 2.0
+        if (done == 1.0 or done == 2.0) and not idle[i]:
+            n_ended += 1
+    return n_ended
