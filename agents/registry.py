@@ -9,11 +9,13 @@ from .baselines import ConventionalPolicy, EndStrokePolicy
 from .gaslaw import GasLawPerRigPolicy, GasLawPolicy
 from .learned import LayoutMismatchError, SB3Policy, read_run, run_member
 from .mpc import ModelPredictivePolicy
+from .mpc_rig import RigModelPolicy
 from .oracle import OraclePolicy
 
 BASELINES: dict[str, type[Policy]] = {
     "conventional": ConventionalPolicy, "endstroke": EndStrokePolicy, "gaslaw": GasLawPolicy,
-    "gaslaw-rig": GasLawPerRigPolicy, "mpc": ModelPredictivePolicy, "oracle": OraclePolicy,
+    "gaslaw-rig": GasLawPerRigPolicy, "mpc": ModelPredictivePolicy, "mpc-rig": RigModelPolicy,
+    "oracle": OraclePolicy,
 }
 
 
@@ -128,8 +130,9 @@ def trained_preset(policy: Policy, run: dict | None) -> str | None:
 
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``), a
-    stable-baselines3 ``.zip`` (PPO, DQN or A2C) or a Gas-Law K calibration (``.json``, from
-    ``python -m agents.gaslaw --out``). A model trained on another rig than ``env``'s is loaded
+    stable-baselines3 ``.zip`` (PPO, DQN or A2C), a Gas-Law K calibration (``.json``, from
+    ``python -m agents.gaslaw --out``) or a commissioned rig model (a folder of ``pneugym
+    commission``, planned on by ``mpc-rig``). A model trained on another rig than ``env``'s is loaded
     with a :class:`RigMismatchWarning` naming the differences. The model's observation layout (recorded in the
     file, or in its run's ``run.json``) must match the environment's up to the history, else a
     :class:`~agents.learned.LayoutMismatchError` says what differs. ``kwargs`` override the ESAC
@@ -145,6 +148,11 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no saved model at {path}")
+    if (p / "commissioning.json").is_file() or p.name == "commissioning.json":
+        if kwargs:  # a commissioned rig model (pneugym commission): mpc-rig plans on it
+            raise ValueError(f"{p} is a commissioned rig model: it takes no overrides, got "
+                             f"{sorted(kwargs)}")
+        return RigModelPolicy.for_env(env, model=p)
     f = _model_file(p)
     layout = env.unwrapped.observation_layout()
     if f.suffix.lower() == ".json":  # a Gas-Law K calibration (python -m agents.gaslaw --out)

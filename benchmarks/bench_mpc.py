@@ -5,7 +5,8 @@ Draws ``--episodes`` conditions from the ``family`` preset (each its own rig, su
 with the evaluation's sensor noise) from ``--seed``, runs every policy on the same episodes and
 writes ``mpc_family.json`` (per policy: oracle fraction, saving, time, stall and stick-slip rates,
 wall time) and ``mpc_family.png`` (oracle fraction per policy; saving against time increase).
-Saved models join as ``NAME=PATH`` (e.g. ``esac_family=runs/esac-family``).
+Saved models join as ``NAME=PATH`` (e.g. ``esac_family=runs/esac-family``); ``mpc-rig`` is
+commissioned on each draw's rig from its two strokes first (about 30 s a rig on 2 cores).
 
     python benchmarks/bench_mpc.py                      # 60 episodes, ~10 min on 2 cores
     python benchmarks/bench_mpc.py --episodes 8 --out bench/mpc
@@ -33,11 +34,16 @@ def main(argv=None) -> dict:
                     help="seed of the draws (default 4,000,000: held out; 3,000,000 was the "
                          "validation set the settings of mpc were chosen on)")
     ap.add_argument("--out", default="bench/mpc", help="folder for the results")
+    ap.add_argument("--commission-starts", type=int, default=None,
+                    help="mpc-rig: least-squares starts per line model of each rig's fit")
+    ap.add_argument("--commission-nfev", type=int, default=None,
+                    help="mpc-rig: evaluations per least-squares start")
     args = ap.parse_args(argv)
     if args.episodes < 1:
         ap.error("--episodes must be >= 1")
     import numpy as np
 
+    from agents.evaluation.commissioning import run_commissioned
     from agents.evaluation.run import run_policy, summarize
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
     from agents.evaluation.suites import NOISE
@@ -51,11 +57,18 @@ def main(argv=None) -> dict:
     rng = np.random.default_rng(args.seed)
     conds = [space.sample(rng) for _ in range(args.episodes)]
     names = list(dict.fromkeys(["conventional", *args.policies, "oracle"]))
+    commission = {k: v for k, v in (("starts", args.commission_starts),
+                                    ("max_nfev", args.commission_nfev)) if v is not None}
     records, wall = {}, {}
     for spec in names:
         name, pol = make_named_policy(spec, probe)
         t0 = time.perf_counter()
-        out = run_policy(pol, conds, cfg, args.seed)
+        if getattr(pol, "commissioned_per_rig", False):  # mpc-rig: two strokes of each rig first
+            pol.commission_options.update(commission)
+            out = run_commissioned(pol, [(f"draw-{i}/", c) for i, c in enumerate(conds)], cfg,
+                                   args.seed, probe.rig, run_policy, progress=True)
+        else:
+            out = run_policy(pol, conds, cfg, args.seed)
         wall[name] = time.perf_counter() - t0
         records[name] = [{k: (v[i].item() if hasattr(v[i], "item") else v[i])
                           for k, v in out.items()} for i in range(len(conds))]

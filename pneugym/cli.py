@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "discrepancy": ("pneugym.discrepancy.__main__",
                     "find, name and fit the effect that separates measured runs from the model"),
     "validate": ("pneugym.validate", "the plant's validation report against the thesis's figures"),
+    "commission": ("pneugym.commission",
+                   "fit a model of one rig to two of its measured strokes, for the mpc-rig policy"),
     "calibrate": ("pneugym.calibrate", "fit the rig parameters the thesis does not give"),
     "gaslaw": ("agents.gaslaw", "calibrate the Gas-Law rule's K per supply pressure"),
     "rig": ("pneugym.rigfile", "check a rig file and show how it differs from the thesis rig"),

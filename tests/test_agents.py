@@ -62,8 +62,8 @@ def oracle() -> OraclePolicy:
 
 
 # --- interface ------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", sorted(BASELINES))
-def test_predict_on_one_observation_and_a_batch(name):
+@pytest.mark.parametrize("name", sorted(set(BASELINES) - {"mpc-rig"}))  # (needs a rig model:
+def test_predict_on_one_observation_and_a_batch(name):                 # tests/test_commission.py)
     rig = name == "mpc"  # it reads the rig's datasheet values
     env = CutOffEnv(history=2, observe_rig=rig)
     pol = make_policy(name, env)

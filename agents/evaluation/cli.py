@@ -68,6 +68,12 @@ def parser() -> argparse.ArgumentParser:
                          "runs as it is, with a warning naming the differences")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bars (evaluation, and training on demand)")
+    ap.add_argument("--commission-starts", type=int, default=None, metavar="N",
+                    help="mpc-rig: least-squares starts of each rig's commissioning fit "
+                         "(default 2)")
+    ap.add_argument("--commission-nfev", type=int, default=None, metavar="N",
+                    help="mpc-rig: iterations per start of each rig's commissioning fit "
+                         "(default 40)")
     add_parallel_arguments(ap, "the (suite, policy) pairs")
     return ap
 
@@ -80,6 +86,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers {args.workers}: must be >= 1")
+    for flag, v in (("--commission-starts", args.commission_starts),
+                    ("--commission-nfev", args.commission_nfev)):
+        if v is not None and v < 1:
+            ap.error(f"{flag} {v}: must be >= 1")
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1 (episodes per condition cell)")
     if not 0 <= args.seed < 2 ** 63:
@@ -101,7 +111,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                                env_config.get("rig"))
     results = evaluate(policies, suites, args.episodes, args.seed, env_config=env_config,
                        preloaded=preloaded, progress=progress, workers=args.workers,
-                       ray_address=args.ray_address)
+                       ray_address=args.ray_address, commission={
+                           k: v for k, v in (("starts", args.commission_starts),
+                                             ("max_nfev", args.commission_nfev))
+                           if v is not None})
     print_table(results)
     write_outputs(results, args.out)
     print(f"\nwrote {args.out}/results.json, results.csv and plots")

@@ -114,6 +114,8 @@ def plot_examples(results: dict[str, Any], out: Path) -> None:
     for name in names:
         env = CutOffEnv(render_mode="rgb_array", observe_rig=True)  # as evaluations run
         pol = make_policy(name, env)
+        if getattr(pol, "commissioned_per_rig", False):
+            continue  # it needs its rig's commissioning strokes first (not one example)
         obs, info = env.reset(seed=EVAL_SEED, options={"conditions": cond})
         pol.begin_episodes([cond])
         done = False

@@ -62,12 +62,14 @@ def _absolute(spec: str) -> str:
 
 def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: dict,
                    policy: Policy | None = None, probe: CutOffVectorEnv | None = None,
-                   eps: list[tuple[str, Conditions]] | None = None
+                   eps: list[tuple[str, Conditions]] | None = None,
+                   commission: Mapping[str, Any] | None = None
                    ) -> tuple[str, list[dict[str, Any]], float]:
     """``(name, per-episode records, wall time [s])`` of one policy on one suite (a task of
     :func:`pneugym.parallel.run_tasks` when evaluation runs in parallel). ``policy``: already
     loaded, else built or loaded from ``spec``; ``probe`` (an environment of ``env_config``)
-    and ``eps`` (the suite's episodes): made here unless given."""
+    and ``eps`` (the suite's episodes): made here unless given; ``commission``: options of the
+    commissioning fit of a policy that plans on a model of each rig (``mpc-rig``)."""
     probe = probe or CutOffVectorEnv(num_envs=1, **env_config)
     if eps is None:
         eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
@@ -75,7 +77,13 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
     if policy is None:
         name, policy = make_named_policy(spec, probe)
     t0 = time.perf_counter()
-    out = run_policy(policy, [c for _, c in eps], env_config, seed)
+    if getattr(policy, "commissioned_per_rig", False) and policy.model is None:
+        from .commissioning import run_commissioned  # a model of each rig from its strokes
+
+        policy.commission_options.update(commission or {})
+        out = run_commissioned(policy, eps, env_config, seed, probe.rig, run_policy)
+    else:
+        out = run_policy(policy, [c for _, c in eps], env_config, seed)
     wall = time.perf_counter() - t0
     return name, [{"suite": suite, "policy": name, "condition": label, "episode": i,
                    **{k: _py(v[i]) for k, v in out.items()}, **_conditions(label, c)}
@@ -85,12 +93,14 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
 def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
              env_config: dict | None = None,
              preloaded: Mapping[str, Policy] | None = None, progress: bool = True,
-             workers: int = 1, ray_address: str | None = None) -> dict[str, Any]:
+             workers: int = 1, ray_address: str | None = None,
+             commission: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Run every policy on every suite; returns the results.json structure. ``preloaded``:
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
     ``progress``: a progress bar over the policies of each suite. ``workers`` /
     ``ray_address``: every (suite, policy) pair as a task of :func:`pneugym.parallel.run_tasks`
-    (each worker loads its model from the spec's path; the numbers are the same)."""
+    (each worker loads its model from the spec's path; the numbers are the same);
+    ``commission``: options of ``mpc-rig``'s commissioning fits (``starts``, ``max_nfev``)."""
     env_config = evaluation_env_config(env_config)
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
@@ -103,7 +113,8 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
         pairs = [(suite, spec) for suite in suites for spec in names]
         outs = run_tasks(policy_records, [
             {"spec": _absolute(spec), "suite": suite, "episodes": episodes, "seed": seed,
-             "env_config": env_config} for suite, spec in pairs], workers, ray_address,
+             "env_config": env_config, "commission": dict(commission or {})}
+            for suite, spec in pairs], workers, ray_address,
             progress, desc="evaluation")
         done = dict(zip(pairs, outs))
     for suite in suites:
@@ -114,7 +125,8 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
                          disable=not progress or parallel):
             name = parse_spec(spec)[0]
             name, records[name], wall[name] = done.get((suite, spec)) or policy_records(
-                spec, suite, episodes, seed, env_config, preloaded.get(name), probe, eps)
+                spec, suite, episodes, seed, env_config, preloaded.get(name), probe, eps,
+                commission)
         conv_ret = _mean([r["objective"] for r in records["conventional"]])
         orc_ret = _mean([r["objective"] for r in records["oracle"]])
         labels = list(dict.fromkeys(label for label, _ in eps))
@@ -143,6 +155,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
         if rigs:
             results["suites"][suite]["rigs"] = rigs
     results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
+                         "commission": dict(commission or {}),
                          "seed": seed, "env_config": {k: repr(v) if not isinstance(
                              v, (int, float, str, bool, type(None))) else v
                              for k, v in env_config.items() if k != "rig"},

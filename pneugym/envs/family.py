@@ -32,7 +32,8 @@ CHANGEABLE = (
     "line.length_m", "line.diameter_m", "line.model", "valve.area_m2", "valve.exhaust_area_m2",
     "valve.delay_s", "valve.flow_model", "friction.static_n", "friction.coulomb_n",
     "friction.viscous_n_s_per_m", "effects.leak_drive_area_m2", "effects.leak_piston_area_m2",
-    "effects.heat_transfer_time_constant_s", "effects.stribeck_force_n", "effects.sensor_lag_s",
+    "effects.heat_transfer_time_constant_s", "effects.stribeck_force_n",
+    "effects.stribeck_velocity_m_s", "effects.sensor_lag_s",
     "solver.dt_s", "cylinder.design", "cylinder.mounting_angle_deg",
 )
 

@@ -1,0 +1,176 @@
+"""Model-predictive cut-off on a commissioned rig model (``mpc-rig``).
+
+A deployable, non-privileged policy for a rig no policy was trained on. Before it runs, the rig
+makes two recorded strokes (:func:`pneugym.commission.commissioning_protocol`: a conventional
+one, one cut off on arrival and held) and :func:`pneugym.commission.commission` fits a model of
+the rig to them: valve delay and areas, friction, cushions, leaks, a transducer lag, the
+supply line's model (and heat exchange and Stribeck friction where they are significant), with
+the fit's uncertainty. At the start of every stroke
+the policy reads the operating point it is told (the supply set-point and the payload, as every
+policy is) and plans on the model: it runs the plant ahead for every cut-off time (the oracle's
+search, :func:`agents.oracle.search_cuts`) on ``members`` plausible rigs (the fitted one and
+draws from the fit's uncertainty, :meth:`~pneugym.commission.Commissioned.members`), averages the
+return over them and cuts at the time whose worst average within ``margin_periods`` either side
+is best (:func:`agents.mpc.robust_best`): a cut on the edge of a stick-slip or a stall, which
+the model may misplace by a few ms, is given up for a little air (issue 12, part 5).
+
+Plans are cached per operating point: on a real controller they are computed between strokes
+(about a second each on one core) and the stroke itself only compares the time with the plan.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from pneugym.envs import Conditions, conventional_figures
+from pneugym.plant import RigWarning, SimulationError
+
+from .mpc import robust_best
+from .oracle import OraclePolicy, TimedCutPolicy, search_cuts
+
+#: how the evaluation commissions a model per rig (:func:`pneugym.commission.commission`'s
+#: options; ``pneugym evaluate --commission-starts/--commission-nfev`` set them)
+COMMISSION_OPTIONS: dict[str, Any] = {"starts": 2, "max_nfev": 40, "n_jobs": 2}
+
+#: the rig fields a member may change against the fitted rig (what the fit estimates)
+MEMBER_FIELDS = (
+    "valve.delay_s", "valve.area_m2", "valve.exhaust_area_m2", "cylinder.port_area_m2",
+    "friction.static_n", "friction.coulomb_n", "friction.viscous_n_s_per_m",
+    "cylinder.cushion_length_m", "cylinder.cushion_factor_drive",
+    "cylinder.cushion_factor_exhaust", "effects.leak_drive_area_m2",
+    "effects.leak_piston_area_m2", "effects.heat_transfer_time_constant_s",
+    "effects.sensor_lag_s", "effects.stribeck_force_n", "effects.stribeck_velocity_m_s")
+
+
+class RigModelPolicy(TimedCutPolicy):
+    """Plans its cut on a commissioned model of the rig (module docstring). ``model``: a
+    :class:`~pneugym.commission.Commissioned` or the folder ``pneugym commission`` wrote (or
+    ``None``: give one with :meth:`commission` before the first stroke); ``members``: plausible
+    rigs the plan averages over (1: the fitted rig alone); ``margin_periods``: half-width of the
+    robust choice; ``coarse``: the search's coarse grid in control periods. The observation must
+    hold the payload (``observe_rig=True``, as every evaluation has)."""
+
+    name = "mpc-rig"
+    #: the evaluation commissions a model per rig when none is given (agents.evaluation.run)
+    commissioned_per_rig = True
+
+    def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
+                 model: Any = None, members: int = 8, margin_periods: int = 3, coarse: int = 4, seed: int = 0):
+        super().__init__(layout, math.inf)
+        for name, v, lo in (("members", members, 1), ("margin_periods", margin_periods, 0),
+                            ("coarse", coarse, 1)):
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+                raise ValueError(f"{name} = {v!r} must be an integer >= {lo}")
+        names = {f["name"] for f in layout.get("rig_features") or []}
+        if "payload" not in names:
+            raise ValueError("mpc-rig reads the payload from the observation: make the "
+                             "environment with observe_rig=True (as evaluate does)")
+        self.layout = dict(layout)
+        self.env_config = {k: v for k, v in dict(env_config or {}).items()
+                           if k not in ("preset", "conditions", "render_mode", "rig")}
+        self.n_members, self.margin, self.coarse, self.seed = members, margin_periods, coarse, seed
+        self.period = float(layout["control_period_s"])
+        self.window = float(self.env_config.get("decision_window_s", 0.02))
+        self.model = None
+        self.commission_options = dict(COMMISSION_OPTIONS)
+        self._plans: dict[tuple[float, float], float] = {}
+        self._prev_t = np.zeros(0)
+        if model is not None:
+            self.set_model(model)
+
+    @classmethod
+    def for_env(cls, env, **kwargs: Any) -> "RigModelPolicy":
+        u = env.unwrapped
+        return cls(u.observation_layout(), env_config=u.config, **kwargs)
+
+    # -- the model ---------------------------------------------------------------------------
+    def set_model(self, model: Any) -> None:
+        """Plan on ``model`` from now on (a :class:`~pneugym.commission.Commissioned` or its
+        folder); forgets every plan."""
+        from pneugym.commission import Commissioned
+
+        if isinstance(model, (str, Path)):
+            model = Commissioned.load(model)
+        if not isinstance(model, Commissioned):
+            raise ValueError(f"mpc-rig needs a commissioned model (pneugym commission), got "
+                             f"{type(model).__name__}")
+        self.model = model
+        self.source = f"mpc-rig on a model of {', '.join(model.runs) or 'measured runs'}"
+        self.rigs = model.members(self.n_members, self.seed)
+        self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig},
+                                    coarse=self.coarse, seed=self.seed)
+        fitted = _fields(model.rig)
+        self.changes = [tuple((k, v) for k, v in _fields(r).items()
+                              if k in MEMBER_FIELDS and v != fitted[k]) for r in self.rigs]
+        self._plans = {}
+
+    def commission(self, runs: Sequence[Any], base: Any = None, **kwargs: Any) -> None:
+        """Fit the model to the rig's measured ``runs`` (:func:`pneugym.commission.commission`,
+        ``kwargs`` its options) and plan on it."""
+        from pneugym.commission import commission
+
+        self.set_model(commission(runs, base, **kwargs))
+
+    # -- the control loop --------------------------------------------------------------------
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        if self.model is None:
+            raise RuntimeError("mpc-rig has no rig model: commission one (pneugym commission "
+                               "RUNS --out DIR, then mpc-rig=DIR) before the first stroke")
+        t = self.read(obs, "time")
+        n = obs.shape[0]
+        if self.t_cut_s.shape != (n,):
+            self.t_cut_s = np.full(n, math.inf)
+            self._prev_t = np.full(n, math.inf)
+        new = np.flatnonzero(t < self._prev_t)  # a stroke began (its time went back)
+        self._prev_t = t.copy()
+        if new.size:
+            sup = self.read(obs[new], "supply_setpoint")
+            load = self.read(obs[new], "payload")
+            points = [(round(float(s), 0), round(float(m), 4)) for s, m in zip(sup, load)]
+            self.plan(sorted(set(points) - set(self._plans)))
+            self.t_cut_s[new] = [self._plans[p] for p in points]
+        return (t >= self.t_cut_s - self._half).astype(np.int64)
+
+    def plan(self, points: Sequence[tuple[float, float]]) -> dict[tuple[float, float], float]:
+        """Plan the cut-off time [s] (``inf``: never) of each operating point ``(supply set-point
+        [Pa gauge], payload [kg])``, all searched together; cached."""
+        if not points:
+            return {}
+        with warnings.catch_warnings():  # a plausible rig that needs a smaller substep is ours
+            warnings.simplefilter("ignore", RigWarning)
+            conds, ranges = {}, {}
+            for k, (sup, load) in enumerate(points):
+                t_end = []
+                for j, ch in enumerate(self.changes):
+                    c = Conditions(supply_pressure_gauge_pa=sup, load_mass_kg=load,
+                                   rig_changes=ch)
+                    try:
+                        t_end.append(conventional_figures(c.rig(self.model.rig), c.dip,
+                                                          period_s=self.period)[0])
+                    except (ValueError, SimulationError):
+                        continue  # a member that cannot complete a stroke here
+                    conds[k, j] = c
+                if not t_end:  # no plausible rig completes a stroke: never cut
+                    self._plans[points[k]] = math.inf
+                    continue
+                ranges[k] = (0, int(math.ceil((max(t_end) + self.window) / self.period)) + 1)
+
+            def score(cands: dict) -> dict:
+                per = self.planner.score_cuts(conds, {(k, j): cands[k] for k, j in conds
+                                                      if k in cands})
+                return {k: {tc: float(np.mean([per[kk, j][tc] for kk, j in per if kk == k]))
+                            for tc in cands[k]} for k in cands}
+
+            for k, js in search_cuts(score, ranges, self.period, self.coarse).items():
+                self._plans[points[k]] = robust_best(js, self.margin * self.period)
+        return {p: self._plans[p] for p in points}
+
+
+def _fields(rig) -> dict[str, Any]:
+    from pneugym.rigfile import rig_fields
+
+    return rig_fields(rig)

@@ -1,0 +1,190 @@
+"""Commissioning (pneugym.commission) and the model-predictive cut-off on it (agents.mpc_rig):
+the fit recovers a rig the rig file misstates, the model's files and uncertainty, the plan
+against the oracle, the evaluation's per-rig commissioning, refusals."""
+from __future__ import annotations
+
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from agents.base import run_first_episodes
+from agents.evaluation.commissioning import DATASHEET_FIELDS, rig_file, rig_groups
+from agents.mpc_rig import RigModelPolicy
+from agents.oracle import OraclePolicy
+from pneugym.commission import (Commissioned, commission, commissioning_protocol, delay_guess,
+                                fitted_params, main)
+from pneugym.data import write_run
+from pneugym.envs import Conditions
+from pneugym.envs.cutoff import CutOffVectorEnv
+from pneugym.params import RigParams
+
+KNOWN = RigParams()
+#: the truth: what the rig file (the thesis rig) misstates
+TRUTH = KNOWN.with_(friction={"static_n": 430.0, "coulomb_n": 100.0},
+                    valve={"exhaust_area_m2": 6e-5, "delay_s": 0.25},
+                    effects={"leak_drive_area_m2": 2e-7})
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return commissioning_protocol(TRUTH, KNOWN, seed=3)
+
+
+@pytest.fixture(scope="module")
+def model(runs, tmp_path_factory) -> Commissioned:
+    """The model ``pneugym commission`` fits and writes (one start, no extras: about 20 s)."""
+    folder = tmp_path_factory.mktemp("measured")
+    for r in runs:
+        write_run(r, folder / r.name)
+    out = tmp_path_factory.mktemp("commissioned")
+    assert main([str(folder), "--out", str(out), "--starts", "1", "--no-extras",
+                 "--max-nfev", "25", "--line-models", "fd"]) == 0
+    for f in ("commissioning.json", "rig.json", "report.md", "fit.png"):
+        assert (out / f).is_file()
+    m = Commissioned.load(out)
+    m.folder = out
+    return m
+
+
+def test_the_protocol_and_the_delay_guess(runs):
+    assert [r.name for r in runs] == ["conventional", "end_stroke_cutoff"]
+    assert runs[0].valve.min() == 1.0 and runs[1].valve[-1] == 0.0  # never cut / cut and held
+    stated = runs[1].rig()  # what the JSON states: the rig file, not the truth
+    assert stated.friction == KNOWN.friction and stated.valve_delay_s == KNOWN.valve_delay_s
+    assert 0.22 <= delay_guess(runs[0]) <= 0.25  # the pressure rise, 10 ms before it shows
+
+
+def test_the_fit_recovers_what_the_rig_file_misstates(model):
+    v = dict(zip([p.path for p in model.params], model.values))
+    assert v["valve.delay_s"] == pytest.approx(0.25, abs=0.005)
+    assert v["valve.exhaust_area_m2"] * KNOWN.valve.exhaust_area_m2 == pytest.approx(6e-5, rel=0.05)
+    assert v["friction.static_n"] == pytest.approx(430.0, rel=0.05)
+    assert v["friction.coulomb_n"] == pytest.approx(100.0, rel=0.1)
+    assert v["effects.leak_drive_area_m2"] == pytest.approx(2e-7, rel=0.1)
+    assert model.misfit < 1.5  # the strokes reproduced to about the noise
+    assert model.rig.valve.delay_s == pytest.approx(v["valve.delay_s"])
+    assert RigParams.load(model.folder / "rig.json") == model.rig  # a rig file
+    assert "valve.delay_s" in (model.folder / "report.md").read_text()
+
+
+def test_the_model_round_trips_and_draws_plausible_rigs(model, tmp_path):
+    again = Commissioned.load(model.save(tmp_path))
+    assert np.array_equal(again.values, model.values) and again.rig == model.rig
+    assert np.array_equal(again.cov_u, model.cov_u)
+    rigs = model.members(5, seed=1)
+    assert rigs[0] == model.rig and len({r.friction.static_n for r in rigs}) == 5
+    se = model.std()["friction.static_n"]
+    assert all(abs(r.friction.static_n - model.rig.friction.static_n) < 6 * se + 1e-9
+               for r in rigs)
+    assert model.members(5, seed=1) == rigs  # seeded
+
+
+def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
+    env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=TRUTH, observe_rig=True)
+    conds = [Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=10.0) for b in (2.0, 3.0)]
+    pol = RigModelPolicy.for_env(env, model=model, members=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = run_first_episodes(env, pol, conds, 1)["objective"]
+        orc = OraclePolicy.for_env(env)
+        best = np.array([j for _, j in orc.plan_many(conds)])
+        conv = run_first_episodes(CutOffVectorEnv(num_envs=2, autoreset=False, rig=TRUTH,
+                                                  observe_rig=True),
+                                  OraclePolicy.for_env(env), conds, 1)  # (planned: the oracle)
+    assert np.allclose(conv["objective"], best, atol=1e-9)
+    assert set(pol._plans) == {(2e5, 10.0), (3e5, 10.0)}  # one plan per operating point
+    assert (got >= best - 0.1 * np.abs(best)).all()  # within 10 % of the oracle's return
+
+
+def test_refusals(runs, model, tmp_path):
+    with pytest.raises(ValueError, match="no runs"):
+        commission([])
+    with pytest.raises(ValueError, match="starts"):
+        commission(runs, starts=0)
+    other = commissioning_protocol(TRUTH, KNOWN.with_(line={"length_m": 2.0}), seed=1)[:1]
+    with pytest.raises(ValueError, match="another rig"):
+        commission([runs[0], *other])
+    (tmp_path / "commissioning.json").write_text(json.dumps({"format": "nope"}))
+    with pytest.raises(ValueError, match="not a pneugym-commissioning/1"):
+        Commissioned.load(tmp_path)
+    bad = model.to_dict()
+    bad["values"] = bad["values"][:-1]
+    (tmp_path / "commissioning.json").write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match="one per parameter"):
+        Commissioned.load(tmp_path)
+    with pytest.raises(FileNotFoundError, match="pneugym commission"):
+        Commissioned.load(tmp_path / "missing")
+    env = CutOffVectorEnv(num_envs=1, observe_rig=True)
+    pol = RigModelPolicy.for_env(env)
+    obs, _ = env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="no rig model"):
+        pol.act(obs)
+    with pytest.raises(ValueError, match="observe_rig"):
+        RigModelPolicy.for_env(CutOffVectorEnv(num_envs=1))
+    with pytest.raises(ValueError, match="members"):
+        RigModelPolicy.for_env(env, members=0)
+    from agents.registry import load_policy
+
+    with pytest.raises(ValueError, match="no overrides"):
+        load_policy(model.folder, env, margin=0.1)
+    assert isinstance(load_policy(model.folder, env), RigModelPolicy)
+    assert main([str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_the_fit_chooses_the_supply_line_model_the_strokes_show():
+    truth = KNOWN.with_(line={"model": "lumped"})  # the rig file (FD) cannot say
+    runs = commissioning_protocol(truth, KNOWN, seed=4)
+    m = commission(runs, starts=1, max_nfev=2, extras=False)
+    assert m.stated.line.model == "lumped" and m.rig.line.model == "lumped"
+    assert commission(runs, starts=1, max_nfev=2, extras=False,
+                      line_models=None).rig.line.model == "fd"  # the stated one only
+    with pytest.raises(ValueError, match="line model"):
+        commission(runs, line_models=("tube",))
+
+
+def test_the_fitted_parameters_stay_physical():
+    ps = {p.path: p for p in fitted_params(KNOWN)}
+    assert ps["cylinder.cushion_length_m"].hi * KNOWN.cylinder.cushion_length_m \
+        <= 0.45 * KNOWN.cylinder.stroke_m + 1e-12
+    assert ps["valve.delay_s"].lo > 0 and not ps["valve.delay_s"].relative
+    no_cushion = KNOWN.with_(cylinder={"cushion_length_m": 0.0})
+    assert not any(p.startswith("cylinder.cushion") for p in
+                   (q.path for q in fitted_params(no_cushion)))
+
+
+def test_the_evaluation_commissions_every_rig_from_its_rig_file():
+    changes = (("cylinder.dead_volume_m3", 3e-4), ("friction.static_n", 500.0),
+               ("line.length_m", 2.0), ("valve.delay_s", 0.1))
+    known = rig_file(changes, KNOWN)
+    assert known.cylinder.dead_volume_m3 == 3e-4 and known.line.length_m == 2.0
+    assert known.friction == KNOWN.friction and known.valve == KNOWN.valve  # hidden truth
+    assert "friction.static_n" not in DATASHEET_FIELDS
+    eps = [("a/1bar", None), ("b/1bar", None), ("a/2bar", None)]
+    assert rig_groups(eps) == {"a": [0, 2], "b": [1]}
+    assert rig_groups([("1bar", None)]) == {"": [0]}
+
+
+def test_evaluate_runs_mpc_rig_with_a_commissioning_per_rig(monkeypatch):
+    from agents.evaluation import run as R
+    from agents.evaluation.run import evaluate
+
+    seen = []
+    real = R.run_policy
+
+    def spy(policy, conds, env_config, seed):
+        if isinstance(policy, RigModelPolicy):
+            seen.append((policy.model.runs, len(conds)))
+        return real(policy, conds, env_config, seed)
+
+    monkeypatch.setattr(R, "run_policy", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = evaluate(["mpc-rig"], ["nominal"], 1, 1_000_000, progress=False,
+                       commission={"starts": 1, "max_nfev": 3})
+    s = res["suites"]["nominal"]["policies"]["mpc-rig"]
+    assert s["episodes"] == 2 and math.isfinite(s["return_mean"])
+    assert ["conventional", "end_stroke_cutoff"] in [r for r, _ in seen]
+    assert res["config"]["commission"] == {"starts": 1, "max_nfev": 3}
