@@ -4,7 +4,7 @@ suite, none used to choose its settings), against the baselines and the oracle.
 Draws ``--episodes`` conditions from the ``family`` preset (each its own rig, supply and load,
 with the evaluation's sensor noise) from ``--seed``, runs every policy on the same episodes and
 writes ``mpc_family.json`` (per policy: oracle fraction, saving, time, stall and stick-slip rates,
-wall time) and ``mpc_family.png`` (oracle fraction per policy; saving against time increase).
+wall time; every episode's figures) and ``mpc_family.png`` (oracle fraction per policy; saving against time increase).
 Saved models join as ``NAME=PATH`` (e.g. ``esac_family=runs/esac-family``); ``mpc-rig`` is
 commissioned on each draw's rig from its two strokes first (about 30 s a rig on 2 cores).
 
@@ -83,7 +83,7 @@ def main(argv=None) -> dict:
               f"{s['stall_rate']:.3f}  stick-slip {s['stick_slip_rate']:.3f}")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    result = {"policies": table, "conditions": [c.to_dict() for c in conds],
+    result = {"policies": table, "episodes": records, "conditions": [c.to_dict() for c in conds],
               "config": vars(args), "provenance": provenance()}
     (out_dir / "mpc_family.json").write_text(json.dumps(result, indent=2, default=str))
     _plot(table, out_dir / "mpc_family.png")

@@ -389,13 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--starts", type=int, default=2, help="least-squares starts (default 2)")
     ap.add_argument("--max-nfev", type=int, default=40,
                     help="least-squares iterations per start and restart (default 40)")
-    ap.add_argument("--jobs", type=int, default=1, help="processes for the starts")
+    ap.add_argument("--jobs", type=int, default=1, help="processes for the starts (default 1)")
     ap.add_argument("--line-models", nargs="+", default=list(LINE_MODELS), choices=LINE_MODELS,
                     help="supply-line models to try; the best fit wins (default: both)")
     ap.add_argument("--no-extras", action="store_true",
                     help="do not try heat exchange and Stribeck friction")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="seed of the starts drawn within the bounds (default 0)")
+    ap.add_argument("--no-plots", action="store_true", help="no fit.png")
     return ap
 
 
