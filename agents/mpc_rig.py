@@ -28,6 +28,7 @@ import numpy as np
 
 from pneugym.envs import Conditions, conventional_figures
 from pneugym.plant import RigWarning, SimulationError
+from pneugym.rigfile import rig_fields
 
 from .mpc import robust_best
 from .oracle import OraclePolicy, TimedCutPolicy, search_cuts
@@ -103,8 +104,8 @@ class RigModelPolicy(TimedCutPolicy):
         self.rigs = model.members(self.n_members, self.seed)
         self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig},
                                     coarse=self.coarse, seed=self.seed)
-        fitted = _fields(model.rig)
-        self.changes = [tuple((k, v) for k, v in _fields(r).items()
+        fitted = rig_fields(model.rig)
+        self.changes = [tuple((k, v) for k, v in rig_fields(r).items()
                               if k in MEMBER_FIELDS and v != fitted[k]) for r in self.rigs]
         self._plans = {}
 
@@ -168,9 +169,3 @@ class RigModelPolicy(TimedCutPolicy):
             for k, js in search_cuts(score, ranges, self.period, self.coarse).items():
                 self._plans[points[k]] = robust_best(js, self.margin * self.period)
         return {p: self._plans[p] for p in points}
-
-
-def _fields(rig) -> dict[str, Any]:
-    from pneugym.rigfile import rig_fields
-
-    return rig_fields(rig)

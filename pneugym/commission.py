@@ -84,9 +84,8 @@ def fitted_params(known: RigParams) -> tuple[FitParam, ...]:
     return (*out, *CANDIDATES["leakage"].params, lag)
 
 
-#: tried after the others, from their fit: the chambers' heat exchange (its start, 1 ms, is all
-#: but isothermal, the plant's default) and Stribeck friction (extra friction at low speed);
-#: every start is the effect's null, so the fit starts where the others left it. Kept only if
+#: tried after the others, from their fit (starts: :data:`EXTRA_STARTS`): the chambers' heat
+#: exchange and Stribeck friction (extra friction at low speed). Kept only if
 #: the F-test on the effective sample size (autocorrelated residuals) gives p below
 #: :data:`EXTRA_P`: with a model whose form differs from the rig's, free parameters soak up
 #: the structural error and then predict worse

@@ -91,10 +91,10 @@ def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
         got = run_first_episodes(env, pol, conds, 1)["objective"]
         orc = OraclePolicy.for_env(env)
         best = np.array([j for _, j in orc.plan_many(conds)])
-        conv = run_first_episodes(CutOffVectorEnv(num_envs=2, autoreset=False, rig=TRUTH,
-                                                  observe_rig=True),
-                                  OraclePolicy.for_env(env), conds, 1)  # (planned: the oracle)
-    assert np.allclose(conv["objective"], best, atol=1e-9)
+        run = run_first_episodes(CutOffVectorEnv(num_envs=2, autoreset=False, rig=TRUTH,
+                                                 observe_rig=True),
+                                 OraclePolicy.for_env(env), conds, 1)  # the oracle, run
+    assert np.allclose(run["objective"], best, atol=1e-9)  # its plans are its returns
     assert set(pol._plans) == {(2e5, 10.0), (3e5, 10.0)}  # one plan per operating point
     assert (got >= best - 0.1 * np.abs(best)).all()  # within 10 % of the oracle's return
 
