@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -41,6 +42,32 @@ class Run:
     @property
     def params(self) -> RigParams:
         return self.plant.params
+
+
+DOCS = "tests/test_docs.py"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The docs pages (``test_docs.py``, the longest single tests) first, so that under
+    ``pytest -n N`` no worker is left with a long page at the end."""
+    items.sort(key=lambda item: not item.nodeid.startswith(DOCS))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """``pytest -n N`` (pytest-xdist): every test module goes to one worker, so its module
+    fixtures are built once, while each docs page may go to any; in collection order."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    config.option.loadscopereorder = False  # keep the docs pages first
+
+    class ModuleScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid if nodeid.startswith(DOCS) else nodeid.split("::", 1)[0]
+
+    return ModuleScheduling(config, log)
 
 
 def simulate(params: RigParams | None = None, schedule=((0.0, 1),), t_end: float = T_MAX,

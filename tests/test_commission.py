@@ -99,6 +99,21 @@ def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
     assert (got >= best - 0.1 * np.abs(best)).all()  # within 10 % of the oracle's return
 
 
+def test_mpc_rig_decides_as_in_the_environment(model):
+    """The deployable controller around mpc-rig, fed what the sensors read under noise, builds
+    the same observations and gives the same commands as the policy in the environment."""
+    from pneugym.deploy.check import check_equivalence
+
+    conds = [Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m, position_noise_m=3e-5,
+                        pressure_noise_pa=400.0) for b, m in ((2.0, 10.0), (4.0, 25.0))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = check_equivalence(lambda env: RigModelPolicy.for_env(env, model=model, members=2),
+                                conds, seed=4)
+    assert res["decisions"] > 100 * res["episodes"]
+    assert res["observations_differing"] == 0 and res["commands_differing"] == 0, res["first"]
+
+
 def test_refusals(runs, model, tmp_path):
     with pytest.raises(ValueError, match="no runs"):
         commission([])
