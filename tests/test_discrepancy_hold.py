@@ -142,3 +142,5 @@ def test_hold_through_the_cli(tmp_path, capsys):
     bad.write_text("time,pressure\n0,1\n")
     assert main(["--hold", str(bad), "--out", str(tmp_path / "rep2")]) == 2
     assert "p_drive" in capsys.readouterr().err
+    assert main(["--hold", str(path), "--out", str(tmp_path / "rep3"), "--starts", "0"]) == 2
+    assert "n_starts >= 1" in capsys.readouterr().err  # --starts reaches the hold test

@@ -9,7 +9,10 @@ Per page, blocks run in document order in one scratch folder (holding links to t
   ``<!-- test: NAME="extra args" ... -->``, appends the extra arguments to every command whose
   program is NAME (``train``, ``evaluate``, ``discrepancy``, ``validate``, ``calibrate``,
   ``gaslaw``, ``bench_plant``, ...): the page shows the real command, the test runs it on a small
-  budget. ``<!-- test: skip="why" -->`` skips a block: only for installing, which CI does itself;
+  budget. For a ```` ```python ```` block, ``<!-- test: swap="TEXT => SMALLER" -->`` runs it with
+  ``TEXT`` (which must be there) replaced by ``SMALLER``, e.g. a fit's options on a small budget
+  (several swaps separated by ``;;``). ``<!-- test: skip="why" -->`` skips a block: only for
+  installing, which CI does itself;
 - other blocks (```` ```text ````, ```` ```json ````, tables) are output and are not run.
 
 ``PNEUGYM_DOCS_ONLY=page.md`` runs one page.
@@ -70,6 +73,16 @@ def commands(code: str) -> list[str]:
     return lines
 
 
+def swapped(code: str, swaps: str, where: str) -> str:
+    """``code`` with every ``TEXT => SMALLER`` of ``swaps`` (``;;``-separated) applied; a
+    ``TEXT`` the code no longer holds is an error, so the swap cannot silently stop applying."""
+    for swap in filter(None, (w.strip() for w in swaps.split(";;"))):
+        old, sep, new = (x.strip() for x in swap.partition("=>"))
+        assert sep and old in code, f"{where}: swap {swap!r} does not apply to the code"
+        code = code.replace(old, new)
+    return code
+
+
 def run_shell(code: str, opts: dict[str, str], cwd: Path) -> None:
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
            "MPLBACKEND": "Agg"}
@@ -116,6 +129,7 @@ def test_every_code_block_of_the_page_runs(page, tmp_path, monkeypatch):
             assert "install" in opts["skip"], f"{page_id(page)} block {k}: only installs may skip"
             continue
         if lang == "python":
+            code = swapped(code, opts.get("swap", ""), f"{page_id(page)} block {k}")
             try:
                 exec(compile(code, f"{page_id(page)}[block {k}]", "exec"), namespace)
             except Exception as exc:
@@ -135,6 +149,9 @@ def test_the_harness_parses_options_programs_and_continuations():
         page.unlink()
     assert (lang, opts, lang2, opts2) == ("bash", {"train": "--timesteps 8"}, "python", {})
     assert commands(code) == ["pneugym train --algo ppo --out runs/ppo"]
+    assert swapped("fit(a, n=4)", "n=4 => n=1;; fit( => go(", "x") == "go(a, n=1)"
+    with pytest.raises(AssertionError, match="does not apply"):
+        swapped("fit(a)", "n=4 => n=1", "x")
     assert [program(c) for c in ("pneugym train --algo ppo", "python train.py", "python -m "
             "pneugym.discrepancy x", "python benchmarks/bench_plant.py --quick", "ls")] == \
         ["train", "train", "discrepancy", "bench_plant", None]

@@ -38,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "time) or 'none'")
     ap.add_argument("--candidates", default=",".join(CANDIDATES),
                     help=f"comma-separated candidate effects (default: {','.join(CANDIDATES)})")
-    ap.add_argument("--starts", type=int, default=4, help="least-squares starts per fit (default 4)")
+    ap.add_argument("--starts", type=int, default=None,
+                    help="least-squares starts per fit (default 4; 2 for --hold)")
     ap.add_argument("--probe", type=int, default=24, help="start points screened per fit (default 24)")
     ap.add_argument("--max-nfev", type=int, default=40, help="iterations per start (default 40)")
     ap.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
@@ -82,8 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
     holdout = None if a.holdout.lower() == "none" else a.holdout
     try:
-        d = Discrepancy(names, holdout=holdout, n_starts=a.starts, n_probe=a.probe,
-                        max_nfev=a.max_nfev, alpha=a.alpha, min_improvement=a.min_improvement,
+        d = Discrepancy(names, holdout=holdout, n_starts=4 if a.starts is None else a.starts,
+                        n_probe=a.probe, max_nfev=a.max_nfev, alpha=a.alpha, min_improvement=a.min_improvement,
                         seed=a.seed, n_jobs=a.jobs, progress=not a.quiet,
                         max_samples=a.max_samples, calibrate=a.calibrate)
     except ValueError as exc:
@@ -123,7 +124,8 @@ def _hold(a: argparse.Namespace, out) -> int:
     from .hold import HoldDiscrepancy, read_hold, write_hold_report
     try:
         recs = [read_hold(p) for p in a.paths]
-        h = HoldDiscrepancy(alpha=a.alpha, min_improvement=a.min_improvement, seed=a.seed)
+        h = HoldDiscrepancy(alpha=a.alpha, min_improvement=a.min_improvement, seed=a.seed,
+                            n_starts=2 if a.starts is None else a.starts)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
