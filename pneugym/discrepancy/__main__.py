@@ -83,10 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
     holdout = None if a.holdout.lower() == "none" else a.holdout
     try:
-        d = Discrepancy(names, holdout=holdout, n_starts=4 if a.starts is None else a.starts,
-                        n_probe=a.probe, max_nfev=a.max_nfev, alpha=a.alpha, min_improvement=a.min_improvement,
-                        seed=a.seed, n_jobs=a.jobs, progress=not a.quiet,
-                        max_samples=a.max_samples, calibrate=a.calibrate)
+        d = Discrepancy(names, holdout=holdout, n_probe=a.probe, max_nfev=a.max_nfev, alpha=a.alpha,
+                        min_improvement=a.min_improvement, seed=a.seed, n_jobs=a.jobs,
+                        progress=not a.quiet, max_samples=a.max_samples, calibrate=a.calibrate,
+                        **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -119,13 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _starts(a: argparse.Namespace) -> dict[str, int]:
+    """``--starts`` if given; otherwise each fit keeps its own default."""
+    return {} if a.starts is None else {"n_starts": a.starts}
+
+
 def _hold(a: argparse.Namespace, out) -> int:
     """Every PATH as a hold test; a report folder ``out/NAME`` each."""
     from .hold import HoldDiscrepancy, read_hold, write_hold_report
     try:
         recs = [read_hold(p) for p in a.paths]
         h = HoldDiscrepancy(alpha=a.alpha, min_improvement=a.min_improvement, seed=a.seed,
-                            n_starts=2 if a.starts is None else a.starts)
+                            **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
