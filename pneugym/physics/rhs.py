@@ -36,7 +36,12 @@ from .orifice import flow_at, implicit_flow
 from .valve import supply_pressure, valve_opening
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+# Compiled once, not inlined into the substep: numba inlines ``inline="always"`` at its own IR
+# level, typing each inlined body again at every call site, and the substep's three stages made
+# a cold compile take over 10 minutes (about 50 s so). Without numba's runtime (``_nrt=False``)
+# its array arguments are not reference-counted, and with the substep's ``fastmath`` flags LLVM
+# gives the substep the same results to the last bit.
+@njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
 def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     """One stage of the IMEX substep: the implicit part, then the explicit right-hand side.
 
