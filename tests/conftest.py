@@ -1,8 +1,9 @@
 """Shared fixtures for the pneugym test-suite.
 
 The numba kernels are compiled once per machine (``cache=True``); a cold run of the whole suite
-spends ~10-15 s compiling. The plant runs below are cheap (a few ms each once compiled), so the
-session fixtures only exist to avoid repeating the same runs in many tests.
+first compiles them (about a minute for the plant and its batch; each ``pytest -n`` worker
+compiles what it needs before the cache has it). The plant runs below are cheap (a few ms each
+once compiled), so the session fixtures only exist to avoid repeating the same runs in many tests.
 
 Nothing here hard-codes calibrated defaults (areas, lengths, dead volumes): tests compare relations
 and physics, so they keep holding after a re-calibration of the default rig.
