@@ -12,7 +12,7 @@ two simulated strokes, the same noise seed), then prints and writes:
 
 Writes ``mpc_diagnosis.json`` and ``mpc_diagnosis.png`` (return against cut-off time per draw).
 
-    python benchmarks/bench_mpc_diagnosis.py --draws 5 1 38 34   # ~1 min a draw on 2 cores
+    python benchmarks/bench_mpc_diagnosis.py --draws 5 1 38 34   # 3 min on 2 cores
 """
 from __future__ import annotations
 
