@@ -38,7 +38,7 @@ from .valve import supply_pressure, valve_opening
 
 # Compiled once, not inlined into the substep: numba inlines ``inline="always"`` at its own IR
 # level, typing each inlined body again at every call site, and the substep's three stages made
-# a cold compile take over 10 minutes (about 50 s so). Without numba's runtime (``_nrt=False``)
+# a cold compile take over 12 minutes (about 50 s this way). Without the runtime (``_nrt=False``)
 # its array arguments are not reference-counted, and with the substep's ``fastmath`` flags LLVM
 # gives the substep the same results to the last bit.
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
