@@ -43,12 +43,11 @@ def main(argv=None) -> dict:
         ap.error("--draws must be >= 0 and --grid > 0")
     import numpy as np
 
-    from agents.evaluation.commissioning import rig_file
+    from agents.evaluation.commissioning import commissioning_runs
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
     from agents.evaluation.suites import NOISE
     from agents.mpc_rig import MEMBER_FIELDS
     from agents.oracle import OraclePolicy
-    from pneugym.commission import commissioning_protocol
     from pneugym.envs import PRESETS, Conditions, conventional_figures
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
@@ -70,9 +69,8 @@ def main(argv=None) -> dict:
         c = conds[g]
         truth = Conditions(supply_pressure_gauge_pa=base.supply_pressure_gauge_pa,
                            load_mass_kg=base.load_mass_kg, rig_changes=c.rig_changes).rig(base)
-        runs = commissioning_protocol(truth, rig_file(c.rig_changes, base),
-                                      seed=args.seed + 7919 * g)  # as run_commissioned
-        policy.commission(runs, **policy.commission_options)
+        policy.commission(commissioning_runs(c.rig_changes, base, args.seed, g),
+                          **policy.commission_options)
         m = policy.model
         point = (round(float(c.supply_pressure_gauge_pa), 0), round(float(c.load_mass_kg), 4))
         plan = policy.plan([point])[point]

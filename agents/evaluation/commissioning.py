@@ -26,6 +26,17 @@ def rig_file(changes: tuple, base: RigParams) -> RigParams:
     return apply_changes(base, tuple((k, v) for k, v in changes if k in DATASHEET_FIELDS))
 
 
+def commissioning_runs(changes: tuple, base: RigParams, seed: int, g: int) -> list:
+    """The two recorded strokes that commission rig number ``g`` of an evaluation: simulated on
+    the rig's truth (``base`` under ``changes``, at ``base``'s operating point) and stated as its
+    rig file (:func:`rig_file`), with the noise of seed ``seed + 7919 g``."""
+    from pneugym.commission import commissioning_protocol
+
+    truth = Conditions(supply_pressure_gauge_pa=base.supply_pressure_gauge_pa,
+                       load_mass_kg=base.load_mass_kg, rig_changes=changes).rig(base)
+    return commissioning_protocol(truth, rig_file(changes, base), seed=int(seed) + 7919 * g)
+
+
 def rig_groups(eps: Sequence[tuple[str, Conditions]]) -> dict[str, list[int]]:
     """Episode indices by rig: the label's part before ``/`` (one group for a suite on the
     environment's own rig)."""
@@ -43,8 +54,6 @@ def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_con
     runs a batch of episodes."""
     from tqdm import tqdm
 
-    from pneugym.commission import commissioning_protocol
-
     groups = rig_groups(eps)
     parts: dict[int, dict[str, Any]] = {}
     for g, (name, idx) in enumerate(tqdm(groups.items(), desc="commissioning", unit="rig",
@@ -52,10 +61,7 @@ def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_con
         changes = eps[idx[0]][1].rig_changes
         if any(eps[i][1].rig_changes != changes for i in idx):
             raise ValueError(f"rig {name!r}: its episodes differ in their rig")
-        truth = Conditions(supply_pressure_gauge_pa=base.supply_pressure_gauge_pa,
-                           load_mass_kg=base.load_mass_kg, rig_changes=changes).rig(base)
-        known = rig_file(changes, base)
-        runs = commissioning_protocol(truth, known, seed=int(seed) + 7919 * g)
+        runs = commissioning_runs(changes, base, seed, g)
         policy.commission(runs, **getattr(policy, "commission_options", {}))
         out = run_policy(policy, [eps[i][1] for i in idx], env_config, seed)
         for k, i in enumerate(idx):
