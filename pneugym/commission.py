@@ -103,6 +103,10 @@ EXTRA_STARTS = ({"effects.heat_transfer_time_constant_s": 1e-3, "effects.stribec
                  "effects.stribeck_velocity_m_s": 0.02})
 EXTRA_P = 1e-3
 
+#: a misfit (SSR/N) the report flags: residuals over three times the noise's, issue 17's bound
+#: for a model that reproduces its data
+MISFIT_FLAG = 9.0
+
 
 def commissioning_protocol(truth: RigParams, known: RigParams | None = None, *,
                            t_end: float = 3.0, sample_rate_hz: float = 1000.0,
@@ -417,6 +421,11 @@ def report_markdown(m: Commissioned) -> str:
         lines.append(f"- {run}: " + ", ".join(f"{k} {v:.4f}" for k, v in ch.items()))
     if m.extras:
         lines += ["", f"Kept beyond the base set: {', '.join(m.extras)}."]
+    if not m.misfit <= MISFIT_FLAG:
+        lines += ["", f"**The misfit exceeds {MISFIT_FLAG:g}**: the residuals are over three "
+                  f"times the noise's. Check the runs and the rig file, and fit again with more "
+                  f"`--starts`. (`mpc-rig` still plans on it: on fresh rig-family draws a high "
+                  f"misfit did not foretell a poor plan; docs/policies.md.)"]
     return "\n".join(lines) + "\n"
 
 

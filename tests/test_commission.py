@@ -15,7 +15,7 @@ from agents.evaluation.commissioning import DATASHEET_FIELDS, rig_file, rig_grou
 from agents.mpc_rig import RigModelPolicy
 from agents.oracle import OraclePolicy
 from pneugym.commission import (Commissioned, commission, commissioning_protocol, delay_guess,
-                                fitted_params, main)
+                                fitted_params, main, report_markdown)
 from pneugym.data import write_run
 from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
@@ -80,6 +80,15 @@ def test_the_model_round_trips_and_draws_plausible_rigs(model, tmp_path):
     assert all(abs(r.friction.static_n - model.rig.friction.static_n) < 6 * se + 1e-9
                for r in rigs)
     assert model.members(5, seed=1) == rigs  # seeded
+
+
+def test_the_report_flags_a_fit_far_above_the_noise(model):
+    from dataclasses import replace
+
+    assert "exceeds" not in report_markdown(model)
+    bad = replace(model, ssr=50.0 * model.n)  # a misfit of 50
+    assert "Misfit SSR/N = 50.00" in report_markdown(bad)
+    assert "**The misfit exceeds 9**" in report_markdown(bad)
 
 
 def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
@@ -202,4 +211,6 @@ def test_evaluate_runs_mpc_rig_with_a_commissioning_per_rig(monkeypatch):
     s = res["suites"]["nominal"]["policies"]["mpc-rig"]
     assert s["episodes"] == 2 and math.isfinite(s["return_mean"])
     assert ["conventional", "end_stroke_cutoff"] in [r for r, _ in seen]
+    ep = res["suites"]["nominal"]["episodes"][-3]  # mpc-rig's (the oracle's come last)
+    assert ep["policy"] == "mpc-rig" and ep["commission_misfit"] > 0
     assert res["config"]["commission"] == {"starts": 1, "max_nfev": 3}

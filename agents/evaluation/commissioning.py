@@ -51,7 +51,9 @@ def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_con
                      ) -> dict[str, np.ndarray]:
     """Final figures of every episode of ``eps`` (in order), each rig's episodes run after
     ``policy`` was commissioned on that rig; ``run_policy(policy, conds, env_config, seed)``
-    runs a batch of episodes."""
+    runs a batch of episodes. Each episode's figures include its rig's ``commission_misfit``
+    (the fit's mean square residual over the noise's, :attr:`pneugym.commission.Commissioned.
+    misfit`)."""
     from tqdm import tqdm
 
     groups = rig_groups(eps)
@@ -65,6 +67,7 @@ def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_con
         policy.commission(runs, **getattr(policy, "commission_options", {}))
         out = run_policy(policy, [eps[i][1] for i in idx], env_config, seed)
         for k, i in enumerate(idx):
-            parts[i] = {key: v[k] for key, v in out.items()}
+            parts[i] = {**{key: v[k] for key, v in out.items()},
+                        "commission_misfit": float(policy.model.misfit)}
     keys = parts[0].keys()
     return {k: np.array([parts[i][k] for i in range(len(eps))]) for k in keys}
