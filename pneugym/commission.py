@@ -424,7 +424,7 @@ def report_markdown(m: Commissioned) -> str:
     if not m.misfit <= MISFIT_FLAG:
         lines += ["", f"**The misfit exceeds {MISFIT_FLAG:g}**: the residuals are over three "
                   f"times the noise's. Check the runs and the rig file, and fit again with more "
-                  f"`--starts`. (`mpc-rig` still plans on it: on fresh rig-family draws a high "
+                  f"`--starts`. (`mpc-rig` still plans on it: on rig-family draws a high "
                   f"misfit did not foretell a poor plan; docs/policies.md.)"]
     return "\n".join(lines) + "\n"
 
