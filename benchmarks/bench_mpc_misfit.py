@@ -14,8 +14,8 @@ Gas-Law; or refuse without a refit. And the rank correlation between misfit and 
 oracle's gain the plan loses. Writes ``mpc_misfit.json`` (every draw's records) and
 ``mpc_misfit.png`` (loss against misfit; the guards' oracle fractions).
 
-    python benchmarks/bench_mpc_misfit.py --seed 3000000   # validation draws, 35-50 min on 2 cores
-    python benchmarks/bench_mpc_misfit.py --seed 5000000   # fresh draws
+    python benchmarks/bench_mpc_misfit.py --seed 3000000                # validation draws, 56 min on 2 cores
+    python benchmarks/bench_mpc_misfit.py --seed 5000000 --episodes 20  # fresh draws, 19 min
 """
 from __future__ import annotations
 
