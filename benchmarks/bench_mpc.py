@@ -46,16 +46,13 @@ def main(argv=None) -> dict:
     from agents.evaluation.commissioning import run_commissioned
     from agents.evaluation.run import run_policy, summarize
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
-    from agents.evaluation.suites import NOISE
-    from pneugym.envs import PRESETS
+    from agents.evaluation.suites import family_draws
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
     cfg = evaluation_env_config({})
     probe = CutOffVectorEnv(num_envs=1, **cfg)
-    space = PRESETS["family"].with_(**NOISE)
-    rng = np.random.default_rng(args.seed)
-    conds = [space.sample(rng) for _ in range(args.episodes)]
+    conds = family_draws(args.seed, args.episodes)
     names = list(dict.fromkeys(["conventional", *args.policies, "oracle"]))
     commission = {k: v for k, v in (("starts", args.commission_starts),
                                     ("max_nfev", args.commission_nfev)) if v is not None}

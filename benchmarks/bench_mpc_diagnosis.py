@@ -45,19 +45,17 @@ def main(argv=None) -> dict:
 
     from agents.evaluation.commissioning import commissioning_runs
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
-    from agents.evaluation.suites import NOISE
+    from agents.evaluation.suites import family_draws
     from agents.mpc_rig import MEMBER_FIELDS
     from agents.oracle import OraclePolicy
-    from pneugym.envs import PRESETS, Conditions, conventional_figures
+    from pneugym.envs import Conditions, conventional_figures
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
     from pneugym.rigfile import rig_fields
 
     cfg = evaluation_env_config({})
     probe = CutOffVectorEnv(num_envs=1, **cfg)
-    rng = np.random.default_rng(args.seed)  # the draws of bench_mpc.py, in its order
-    space = PRESETS["family"].with_(**NOISE)
-    conds = [space.sample(rng) for _ in range(max(args.draws) + 1)]
+    conds = family_draws(args.seed, max(args.draws) + 1)  # the draws of bench_mpc.py
     base = probe.rig
     _, policy = make_named_policy("mpc-rig", probe)
     policy.commission_options.update({k: v for k, v in (("starts", args.commission_starts),

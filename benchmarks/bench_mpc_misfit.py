@@ -53,18 +53,16 @@ def main(argv=None) -> dict:
     from tqdm import tqdm
 
     from agents.evaluation.commissioning import commissioning_runs
-    from agents.evaluation.run import run_policy
+    from agents.evaluation.run import oracle_fraction, run_policy
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
-    from agents.evaluation.suites import NOISE
+    from agents.evaluation.suites import family_draws
     from pneugym.commission import commission
-    from pneugym.envs import PRESETS
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
     cfg = evaluation_env_config({})
     probe = CutOffVectorEnv(num_envs=1, **cfg)
-    rng = np.random.default_rng(args.seed)  # the draws of bench_mpc.py, in its order
-    conds = [PRESETS["family"].with_(**NOISE).sample(rng) for _ in range(args.episodes)]
+    conds = family_draws(args.seed, args.episodes)  # the draws of bench_mpc.py
     base = {}
     for spec in BASELINES:
         out = run_policy(make_named_policy(spec, probe)[1], conds, cfg, args.seed)
@@ -93,7 +91,7 @@ def main(argv=None) -> dict:
     conv, orc = float(np.mean(base["conventional"])), float(np.mean(base["oracle"]))
 
     def fraction(returns) -> float:
-        return (float(np.mean(returns)) - conv) / (orc - conv)
+        return oracle_fraction(float(np.mean(returns)), conv, orc)
 
     guards = {"no guard": fraction([d["first"]["objective"] for d in draws])}
     for lim in args.limits:

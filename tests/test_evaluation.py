@@ -61,6 +61,21 @@ def test_per_condition_fractions(nominal):
                                        or math.isfinite(v["oracle_fraction"]))
 
 
+def test_oracle_fraction_of_mean_returns():
+    assert run.oracle_fraction(-0.5, -1.0, 0.0) == pytest.approx(0.5)
+    assert run.oracle_fraction(-1.0, -1.0, 0.0) == 0.0
+    assert run.oracle_fraction(-0.5, -1.0, -1.0) is None  # the oracle gains nothing
+
+
+def test_family_draws_are_seeded_noisy_and_nested():
+    from agents.evaluation.suites import NOISE, family_draws
+
+    a, b = family_draws(3_000_000, 3), family_draws(3_000_000, 2)
+    assert a[:2] == b and a != family_draws(4_000_000, 3)
+    assert all(c.rig_changes and c.position_noise_m == NOISE["position_noise_m"]
+               and c.pressure_noise_pa == NOISE["pressure_noise_pa"] for c in a)
+
+
 def test_unknown_policy_and_bad_path_are_refused_before_any_work(tmp_path, capsys):
     for spec, msg in (("nope", "unknown policy 'nope'"),
                       (f"x={tmp_path / 'missing.zip'}", "no saved model at")):

@@ -36,10 +36,15 @@ def _mean(v: Sequence[Any]) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
+def oracle_fraction(ret: float, conv: float, oracle: float) -> float | None:
+    """``(ret - conv) / (oracle - conv)`` of mean returns (None when the oracle gains nothing)."""
+    gap = oracle - conv
+    return (ret - conv) / gap if abs(gap) > 1e-12 else None
+
+
 def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str, Any]:
     """Suite (or condition) metrics of one policy's episode records."""
     ret = _mean([r["objective"] for r in rec])
-    gap = oracle - conv
     return {
         "episodes": len(rec),
         "saving_mean": _mean([r["saving_ratio"] for r in rec]),
@@ -48,7 +53,7 @@ def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str
         "stick_slip_rate": _mean([r["stick_slip_events"] > 0 for r in rec]),
         "completion_rate": _mean([r["completed"] for r in rec]),
         "return_mean": ret,
-        "oracle_fraction": (ret - conv) / gap if abs(gap) > 1e-12 else None,
+        "oracle_fraction": oracle_fraction(ret, conv, oracle),
     }
 
 

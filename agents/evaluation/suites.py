@@ -125,6 +125,18 @@ def held_out_draws(preset: str, n: int, stream: int, base: RigParams) -> list[tu
     return out
 
 
+def family_draws(seed: int, n: int) -> list[Conditions]:
+    """The first ``n`` episodes' conditions of the ``family`` preset, with the suites'
+    :data:`NOISE`, drawn from ``numpy.random.default_rng(seed)``: the fresh family draws of the
+    model-predictive benchmarks (``bench_mpc*.py``; seed 3,000,000 validates, 4,000,000 and
+    5,000,000 are held out). The first ``n`` of a larger ``n`` are the same draws."""
+    from pneugym.envs.conditions import PRESETS
+
+    space = PRESETS["family"].with_(**NOISE)
+    rng = np.random.default_rng(seed)
+    return [space.sample(rng) for _ in range(n)]
+
+
 def cylinder_rigs(base: RigParams | None = None) -> dict[str, tuple]:
     """The rigs of the ``cylinders`` suite, by name (``cyl-1`` ...), as ``rig_changes`` to
     ``base`` (default the thesis rig): held-out draws of the ``family-cylinders`` preset, whose
