@@ -20,7 +20,10 @@ Cases (see ``benchmarks/README.md``), all timed round-robin in one process after
 Each environment gets the same pre-drawn actions (a cut-off with probability 1 % per step, so
 episodes end by arrival, stall and cut-off, and resets are part of the cost). The figures are env
 steps per second (a vector step of 64 environments counts 64). The issue's goals: one
-environment >= 0.3x CartPole's rate, the batch of 64 >= 2x. Then, not round-robin: the oracle's
+environment >= 0.3x CartPole's rate, the batch of 64 >= 2x. Then, not round-robin: where a
+vector step's time goes, at 64 and 256 envs, on one and on all numba threads (its compiled call
+against the Python around it, and the step's speed-up on all threads; ``step_split``: each thread
+count in a block of its own, as a user runs it); the oracle's
 plan (its search episodes per second) and a Gas-Law K sweep (episodes per second).
 """
 from __future__ import annotations
@@ -82,12 +85,15 @@ class SingleCase:
 class VectorCase:
     """``calls`` steps of a vector env (gymnasium API; autoreset inside)."""
 
-    def __init__(self, env_id: str, calls: int, seed: int, threads: int | None = None, **kwargs):
-        self.env = gym.make_vec(env_id, num_envs=N_VEC, vectorization_mode="vector_entry_point",
-                                **kwargs)
+    def __init__(self, env_id: str, calls: int, seed: int, threads: int | None = None,
+                 num_envs: int = N_VEC, **kwargs):
+        self.env = gym.make_vec(env_id, num_envs=num_envs,
+                                vectorization_mode="vector_entry_point", **kwargs)
         self.calls = calls
         self.threads = threads
-        self.actions = (np.random.default_rng(seed).random((calls, N_VEC)) < P_CUT).astype(np.int64)
+        self.num_envs = num_envs
+        self.actions = (np.random.default_rng(seed).random((calls, num_envs)) < P_CUT
+                        ).astype(np.int64)
         self.env.reset(seed=seed)
 
     def __call__(self) -> int:
@@ -99,7 +105,7 @@ class VectorCase:
                 self.env.step(self.actions[k])
         finally:
             numba.set_num_threads(prev)
-        return self.calls * N_VEC
+        return self.calls * self.num_envs
 
 
 class SB3Case:
@@ -118,6 +124,42 @@ class SB3Case:
         for k in range(self.calls):
             self.env.step(self.actions[k])
         return self.calls * N_VEC
+
+
+def step_split(calls: int, reps: int, seed: int, threads: int, num_envs: int = N_VEC) -> dict:
+    """Where a vector step's time goes on ``threads`` numba threads: the whole step, its
+    one compiled call (``pneugym.envs.episode.step_observe``, the plants and the sensing) and
+    the Python around it (the actions' check, the infos, the resets of finished episodes), in
+    microseconds per step (median and range over ``reps`` runs of ``calls`` steps)."""
+    from pneugym.envs import episode as EP
+
+    inner, spent = EP.step_observe, [0.0]
+
+    def timed(*args):
+        t0 = time.perf_counter()
+        out = inner(*args)
+        spent[0] += time.perf_counter() - t0
+        return out
+
+    prev = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    case = VectorCase("pneugym/CutOff-v0", calls, seed, num_envs=num_envs)
+    EP.step_observe = timed
+    try:
+        case()  # warm-up
+        total, kernel = [], []
+        for _ in range(reps):
+            spent[0] = 0.0
+            t0 = time.perf_counter()
+            case()
+            total.append((time.perf_counter() - t0) / calls * 1e6)
+            kernel.append(spent[0] / calls * 1e6)
+    finally:
+        EP.step_observe = inner
+        numba.set_num_threads(prev)
+    python = [t - k for t, k in zip(total, kernel)]
+    return {"num_envs": num_envs, "threads": threads, "calls": calls, "step_us": stats(total),
+            "compiled_call_us": stats(kernel), "python_us": stats(python)}
 
 
 def round_robin(cases: dict, reps: int) -> dict[str, list[float]]:
@@ -241,6 +283,19 @@ def main(argv=None) -> dict:
              f"{stats(rates[k])['max']:,.0f}", f"{ratios[k]:.3g}x", goal.get(k, "")]
             for k in cases]
     print(table(["case", "env steps/s (median)", "min", "max", "vs CartPole", "goal"], rows))
+
+    threads = sorted({1, numba.get_num_threads()})
+    split = [step_split(calls if n == N_VEC else calls // 4, reps, s, t, n)
+             for n in (N_VEC, 4 * N_VEC) for t in threads]
+    result["step_split"] = split
+    print()
+    print(table(["vector step", "step [us]", "compiled call [us]", "Python [us]",
+                 "vs 1 thread"],
+                [[f"{d['num_envs']} envs, {d['threads']} numba thread(s)",
+                  f"{d['step_us']['median']:.0f}", f"{d['compiled_call_us']['median']:.0f}",
+                  f"{d['python_us']['median']:.0f}",
+                  f"{split[i - i % len(threads)]['step_us']['median'] / d['step_us']['median']:.2f}x"]
+                 for i, d in enumerate(split)]))
 
     if not args.no_extras:
         prev = numba.get_num_threads()

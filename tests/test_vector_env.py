@@ -280,6 +280,43 @@ def test_sb3_adapter_vecenv_interface():
     mon.close()
 
 
+def test_sb3_adapter_steps_exactly_as_the_vector_env():
+    """The adapter's lean step (no per-step state info) gives the vector env's observations,
+    rewards, dones and final figures, bit for bit."""
+    vec = CutOffVectorEnv(num_envs=4, preset="randomized", time_limit_s=1.0)
+    ada = CutOffVecEnv(num_envs=4, preset="randomized", time_limit_s=1.0)
+    ada.seed(5)
+    np.testing.assert_array_equal(ada.reset(), vec.reset(seed=5)[0])
+    rng, ended = np.random.default_rng(0), 0
+    for _ in range(400):
+        a = (rng.random(4) < 0.02).astype(np.int64)
+        obs, rew, term, trunc, info = vec.step(a)
+        ada.step_async(a)
+        obs2, rew2, done2, infos2 = ada.step_wait()
+        np.testing.assert_array_equal(obs2, obs)
+        np.testing.assert_array_equal(rew2, rew.astype(np.float32))
+        np.testing.assert_array_equal(done2, term | trunc)
+        for i in np.flatnonzero(done2):
+            assert {k: infos2[i][k] for k in FINAL_KEYS} == {
+                k: info["final_info"][k][i] for k in FINAL_KEYS}
+            ended += 1
+    assert ended >= 4
+
+
+def test_a_noise_free_episode_after_noisy_ones_reads_its_sensors_exactly():
+    env = CutOffVectorEnv(num_envs=2, time_limit_s=1.0)
+    noisy = Conditions(position_noise_m=1e-4, pressure_noise_pa=500.0)
+    env.reset(seed=0, options={"conditions": [noisy, Conditions()]})
+    _, _, _, _, info = env.step(np.zeros(2, dtype=np.int64))
+    assert info["measured_x_m"][0] != info["position_m"][0]
+    assert info["measured_x_m"][1] == info["position_m"][1]
+    env.reset(seed=0, options={"conditions": [Conditions(), Conditions()]})
+    for _ in range(3):
+        _, _, _, _, info = env.step(np.zeros(2, dtype=np.int64))
+        np.testing.assert_array_equal(info["measured_x_m"], info["position_m"])
+        np.testing.assert_array_equal(info["measured_p_drive_pa"] > 0, True)
+
+
 def test_sb3_ppo_smoke():
     pytest.importorskip("torch")
     from stable_baselines3 import PPO

@@ -114,6 +114,10 @@ PARAM_OBSERVATION: tuple[Feature, ...] = (
 )
 REGISTERED_MAX_STEPS = 800  # max_episode_steps of pneugym/CutOff-v0 (4 s at 5 ms)
 _MAYBE_NONE = ("stroke_time_s", "time_increase", "cutoff_time_s")
+#: the step info's keys, in the order of the rows of :func:`pneugym.envs.episode.info_row`
+_STEP_INFO = ("time_s", "position_m", "p_drive_pa", "p_exhaust_pa", "measured_x_m",
+              "measured_p_drive_pa", "measured_p_exhaust_pa", "supply_cut")
+_STEP_INFO_MASKS = tuple("_" + k for k in _STEP_INFO)
 #: The number fields of :class:`Conditions` (``infos["conditions"]`` of the vector env).
 _COND_FIELDS = tuple(k for k in Conditions.__dataclass_fields__ if k != "rig_changes")
 _cond_values = operator.attrgetter(*_COND_FIELDS)
@@ -179,7 +183,7 @@ def check_action(action: Any) -> int:
 def check_actions(actions: Any, n: int) -> np.ndarray:
     """A batch of ``n`` actions, each 0 or 1 (integers), shape exactly ``(n,)``."""
     if type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,) \
-            and not (actions & -2).any():  # the common case: 0/1 as int64, checked at once
+            and EP.binary(actions):  # the common case: 0/1 as int64, checked in one call
         return actions.copy()
     a = np.asarray(actions)
     if a.shape != (n,):
@@ -287,6 +291,9 @@ class _CutOffCore:
         self.reward_mode = reward_mode
         self.conditions: list[Conditions | None] = [None] * n
         self._cond_values = np.zeros((n, len(_COND_FIELDS)))  # each episode's, in that order
+        self._rig_changes = np.empty(n, dtype=object)  # each episode's, as a dict (the info's)
+        for i in range(n):
+            self._rig_changes[i] = {}
 
         P, y0, d0 = _template(self.rig)
         self.Y = np.zeros((n, y0.size))
@@ -297,6 +304,7 @@ class _CutOffCore:
         self._starts: dict[tuple, tuple] = {}  # physics key -> rows of P, Y, D, E; datasheet
         self._b = 2 * self.rig.line.n_cells - 1
         self._noise = np.zeros((n, 3))
+        self._noise_zero = True  # no noise left in self._noise (so it need not be zeroed)
         self._noise_std = np.zeros((n, 3))
         self._x_prev = np.zeros(n)
         self._events = np.full((n, 3), np.nan)  # t rise, t breakaway, dp breakaway (observe_rig)
@@ -353,6 +361,7 @@ class _CutOffCore:
         self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
         self._settings(self.E[i])  # public attributes a user (or SB3's set_attr) may change
         self.conditions[i] = cond
+        self._rig_changes[i] = dict(cond.rig_changes)
         self._cond_values[i] = _cond_values(cond)
         self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
                               cond.pressure_noise_pa)
@@ -396,10 +405,12 @@ class _CutOffCore:
         """The sensor noise of episodes ``rows``' next observation."""
         sel = slice(None) if rows is self._all else rows  # all of them: views, not copies
         std = self._noise_std[sel]
-        if std.any():
+        if np.count_nonzero(std):
             self._noise[sel] = rng.standard_normal((rows.size, 3)) * std
-        else:  # (never a noisy episode's last draw left on a noise-free one)
+            self._noise_zero = False
+        elif not self._noise_zero:  # (never a noisy episode's last draw left on a noise-free one)
             self._noise[sel] = 0.0
+            self._noise_zero = rows is self._all
 
     def _observe(self, rows: np.ndarray, rng: np.random.Generator, fresh: bool) -> None:
         """Sense episodes ``rows`` (with noise) and write their observations."""
@@ -663,6 +674,11 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         return self._obs.copy(), infos
 
     def step(self, actions):
+        return self._step(actions, full_info=True)
+
+    def _step(self, actions, full_info: bool):
+        """:meth:`step`; with ``full_info=False`` (the SB3 adapter, which keeps only the finished
+        episodes' figures) the infos hold only ``final_obs`` and ``final_info``."""
         if not self._rngs:
             raise RuntimeError("call reset() before step()")
         acts = check_actions(actions, self.num_envs)
@@ -677,7 +693,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
             self._obs, self._b, self._info, Yb, Db, Eb, self._steps,
             self.max_episode_steps or 0, self._idle, terminated, truncated)
         state_known = True  # self._info holds every episode's step info
-        if self._status.any():  # a step that went non-physical: retried, then sensed
+        if np.count_nonzero(self._status):  # a step that went non-physical: retried, sensed
             state_known = False
             bad = np.flatnonzero(self._status)
             for i in bad:
@@ -695,7 +711,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         if self.observe_rig:
             self._observe_events(self._all)
         rewards = self._rewards.copy()
-        ended = np.flatnonzero((terminated | truncated) & ~self._idle) if n_ended else ()
+        ended = ((terminated | truncated) & ~self._idle).nonzero()[0] if n_ended else ()
         extra: dict[str, Any] = {}
         if len(ended):
             state_known = False
@@ -713,13 +729,14 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
             mask[ended] = True
             if self.autoreset:  # the step's info describes the new episodes, as in SyncVectorEnv
                 self._observe(ended, self.np_random, fresh=True)
-                extra["conditions"] = self._conditions_info()
-                extra["_conditions"] = mask
+                if full_info:
+                    extra["conditions"] = self._conditions_info()
+                    extra["_conditions"] = mask
             extra["final_obs"] = final_obs
             extra["_final_obs"] = mask
             extra["final_info"] = self._stack_final(finals, mask)
             extra["_final_info"] = mask
-        infos = {**self._batch_info(state_known), **extra}
+        infos = {**self._batch_info(state_known), **extra} if full_info else extra
         return self._obs.copy(), rewards, terminated, truncated, infos
 
     def _stack_final(self, finals: dict[int, dict[str, Any]], mask: np.ndarray
@@ -745,10 +762,7 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
 
     def _conditions_info(self) -> dict[str, np.ndarray]:
         out = dict(zip(_COND_FIELDS, self._cond_values.T.copy()))
-        changes = np.empty(self.num_envs, dtype=object)  # the rig of each episode (family)
-        for i, c in enumerate(self.conditions):
-            changes[i] = dict(c.rig_changes) if c is not None else {}
-        out["rig_changes"] = changes
+        out["rig_changes"] = self._rig_changes.copy()  # (one dict per episode, made at its start)
         return out
 
     def _batch_info(self, state_known: bool = False) -> dict[str, Any]:
@@ -756,13 +770,10 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         ``state_known``: the step's compiled call left it in ``self._info``)."""
         if not state_known:
             EP.info_rows(self.Y, self.P, self.D, self.E, self._noise, self._b, self._info)
-        mask = self._ones.copy()
-        t, x, pd, pe, mx, mpd, mpe, cut = self._info.T.copy()
-        info = {"time_s": t, "position_m": x, "p_drive_pa": pd, "p_exhaust_pa": pe,
-                "supply_cut": cut > 0.0, "measured_x_m": mx, "measured_p_drive_pa": mpd,
-                "measured_p_exhaust_pa": mpe}
-        for k in list(info):
-            info["_" + k] = mask
+        cols = self._info.T.copy()
+        info = dict(zip(_STEP_INFO, cols))
+        info["supply_cut"] = info["supply_cut"].astype(bool)  # (E_CUT is 0 or 1)
+        info.update(dict.fromkeys(_STEP_INFO_MASKS, self._ones.copy()))
         return info
 
 

@@ -60,10 +60,10 @@ class CutOffVecEnv(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self):
-        obs, rew, term, trunc, info = self.venv.step(self._actions)
+        obs, rew, term, trunc, info = self.venv._step(self._actions, full_info=False)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         done = term | trunc
-        if done.any():
+        if np.count_nonzero(done):
             fi = info["final_info"]
             for i in np.flatnonzero(done):
                 d = {k: v[i] for k, v in fi.items() if not k.startswith("_")}
