@@ -12,6 +12,7 @@ import pytest
 
 from agents.base import run_first_episodes
 from agents.evaluation.commissioning import DATASHEET_FIELDS, rig_file, rig_groups
+from agents.evaluation.specs import evaluation_env_config
 from agents.mpc_rig import RigModelPolicy
 from agents.oracle import OraclePolicy
 from pneugym.commission import (Commissioned, commission, commissioning_protocol, delay_guess,
@@ -214,3 +215,35 @@ def test_evaluate_runs_mpc_rig_with_a_commissioning_per_rig(monkeypatch):
     ep = res["suites"]["nominal"]["episodes"][-3]  # mpc-rig's (the oracle's come last)
     assert ep["policy"] == "mpc-rig" and ep["commission_misfit"] > 0
     assert res["config"]["commission"] == {"starts": 1, "max_nfev": 3}
+
+
+def test_a_rig_of_a_suite_runs_as_a_task_of_its_own_with_the_same_records():
+    """mpc-rig on a suite of two rigs, whole and its second rig alone (as evaluate's per-rig
+    tasks run it): the same records, each rig's strokes seeded by its place in the suite."""
+    from agents.evaluation.run import _per_rig_tasks, gather, policy_records
+    from agents.evaluation.suites import transfer_rigs
+
+    rigs = transfer_rigs()
+    eps = [(f"{r}/2.5bar-10kg", Conditions(supply_pressure_gauge_pa=2.5e5, load_mass_kg=10.0,
+                                           rig_changes=rigs[r], position_noise_m=3e-5,
+                                           pressure_noise_pa=400.0)) for r in list(rigs)[:2]]
+    fast = {"starts": 1, "max_nfev": 2, "extras": False, "line_models": None, "n_jobs": 1}
+    args = dict(suite="transfer", episodes=1, seed=7, env_config=evaluation_env_config({}),
+                eps=eps, commission=fast)
+    assert _per_rig_tasks("gaslaw", eps) == [None] and _per_rig_tasks("mpc-rig", eps[:1]) == [None]
+    split = _per_rig_tasks("mpc-rig", eps)
+    assert split == [[eps[0][0].split("/")[0]], [eps[1][0].split("/")[0]]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = policy_records("mpc-rig", **args)
+        second = policy_records("mpc-rig", rigs=split[1], **args)
+    assert second[1] == whole[1][1:]
+    parts = [second, ("mpc-rig", whole[1][:1], 1.5)]  # (tasks end in any order)
+    keys = [("transfer", "mpc-rig", r) for r in reversed(split)]
+    name, rec, wall = gather(keys, parts)[("transfer", "mpc-rig")]
+    assert name == "mpc-rig" and rec == whole[1] and [r["episode"] for r in rec] == [0, 1]
+    assert wall == pytest.approx(second[2] + 1.5)
+    with pytest.raises(ValueError, match="not commissioned per rig"):
+        policy_records("gaslaw", rigs=split[0], **args)
+    with pytest.raises(ValueError, match="must name rigs"):
+        policy_records("mpc-rig", rigs=["nope"], **args)

@@ -7,7 +7,7 @@ then it runs that rig's episodes. The strokes' noise is the measured-run default
 0.03 mm at 1 kHz), seeded from the evaluation's seed."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Collection, Sequence
 
 import numpy as np
 
@@ -47,19 +47,26 @@ def rig_groups(eps: Sequence[tuple[str, Conditions]]) -> dict[str, list[int]]:
 
 
 def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_config: dict,
-                     seed: int, base: RigParams, run_policy, progress: bool = False
-                     ) -> dict[str, np.ndarray]:
+                     seed: int, base: RigParams, run_policy, progress: bool = False,
+                     only: Collection[str] | None = None) -> dict[str, np.ndarray]:
     """Final figures of every episode of ``eps`` (in order), each rig's episodes run after
     ``policy`` was commissioned on that rig; ``run_policy(policy, conds, env_config, seed)``
     runs a batch of episodes. Each episode's figures include its rig's ``commission_misfit``
     (the fit's mean square residual over the noise's, :attr:`pneugym.commission.Commissioned.
-    misfit`)."""
+    misfit`). ``only``: the rigs (names of :func:`rig_groups`) to run, the others left out of
+    the figures; each rig's strokes, fit and episodes are the same as in a run of all of them
+    (so rigs can run as tasks of their own)."""
     from tqdm import tqdm
 
     groups = rig_groups(eps)
+    if only is not None and (not only or set(only) - set(groups)):
+        raise ValueError(f"run_commissioned: only = {sorted(only)} must name rigs of the "
+                         f"episodes: {list(groups)}")
     parts: dict[int, dict[str, Any]] = {}
     for g, (name, idx) in enumerate(tqdm(groups.items(), desc="commissioning", unit="rig",
                                          disable=not progress or len(groups) < 2)):
+        if only is not None and name not in only:
+            continue  # (g still counts it: a rig's strokes are seeded by its place in eps)
         changes = eps[idx[0]][1].rig_changes
         if any(eps[i][1].rig_changes != changes for i in idx):
             raise ValueError(f"rig {name!r}: its episodes differ in their rig")
@@ -69,5 +76,5 @@ def run_commissioned(policy: Any, eps: Sequence[tuple[str, Conditions]], env_con
         for k, i in enumerate(idx):
             parts[i] = {**{key: v[k] for key, v in out.items()},
                         "commission_misfit": float(policy.model.misfit)}
-    keys = parts[0].keys()
-    return {k: np.array([parts[i][k] for i in range(len(eps))]) for k in keys}
+    order = sorted(parts)
+    return {k: np.array([parts[i][k] for i in order]) for k in parts[order[0]]}

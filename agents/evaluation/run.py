@@ -14,6 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 import pneugym  # noqa: F401  (registers the environment)
+from agents import BASELINES
 from agents.base import Policy, run_first_episodes
 from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
@@ -68,13 +69,16 @@ def _absolute(spec: str) -> str:
 def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: dict,
                    policy: Policy | None = None, probe: CutOffVectorEnv | None = None,
                    eps: list[tuple[str, Conditions]] | None = None,
-                   commission: Mapping[str, Any] | None = None
+                   commission: Mapping[str, Any] | None = None,
+                   rigs: Sequence[str] | None = None
                    ) -> tuple[str, list[dict[str, Any]], float]:
     """``(name, per-episode records, wall time [s])`` of one policy on one suite (a task of
     :func:`pneugym.parallel.run_tasks` when evaluation runs in parallel). ``policy``: already
     loaded, else built or loaded from ``spec``; ``probe`` (an environment of ``env_config``)
     and ``eps`` (the suite's episodes): made here unless given; ``commission``: options of the
-    commissioning fit of a policy that plans on a model of each rig (``mpc-rig``)."""
+    commissioning fit of a policy that plans on a model of each rig (``mpc-rig``); ``rigs``:
+    for such a policy, only the episodes of these rigs (a task per rig; the records are those
+    of a run of the whole suite)."""
     probe = probe or CutOffVectorEnv(num_envs=1, **env_config)
     if eps is None:
         eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
@@ -82,17 +86,51 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
     if policy is None:
         name, policy = make_named_policy(spec, probe)
     t0 = time.perf_counter()
+    sel = list(range(len(eps)))
     if getattr(policy, "commissioned_per_rig", False) and policy.model is None:
-        from .commissioning import run_commissioned  # a model of each rig from its strokes
+        from .commissioning import rig_groups, run_commissioned  # a model of each rig
 
         policy.commission_options.update(commission or {})
-        out = run_commissioned(policy, eps, env_config, seed, probe.rig, run_policy)
+        out = run_commissioned(policy, eps, env_config, seed, probe.rig, run_policy, only=rigs)
+        if rigs is not None:
+            sel = sorted(i for r in rigs for i in rig_groups(eps)[r])
+    elif rigs is not None:
+        raise ValueError(f"policy {name!r} is not commissioned per rig: it runs a suite whole")
     else:
         out = run_policy(policy, [c for _, c in eps], env_config, seed)
     wall = time.perf_counter() - t0
-    return name, [{"suite": suite, "policy": name, "condition": label, "episode": i,
-                   **{k: _py(v[i]) for k, v in out.items()}, **_conditions(label, c)}
-                  for i, (label, c) in enumerate(eps)], wall
+    return name, [{"suite": suite, "policy": name, "condition": eps[i][0], "episode": i,
+                   **{k: _py(v[k_]) for k, v in out.items()}, **_conditions(*eps[i])}
+                  for k_, i in enumerate(sel)], wall
+
+
+def gather(keys: Sequence[tuple[str, str, Any]],
+           outs: Sequence[tuple[str, list[dict[str, Any]], float]]
+           ) -> dict[tuple[str, str], tuple[str, list[dict[str, Any]], float]]:
+    """The tasks' results ``outs`` (of :func:`policy_records`, one per ``(suite, spec, rigs)``
+    of ``keys``) per ``(suite, spec)``: the records in episode order, the wall time the sum of
+    its tasks' (the policy's computing time, not the elapsed time)."""
+    done: dict[tuple[str, str], tuple[str, list[dict[str, Any]], float]] = {}
+    for (suite, spec, _), (name, rec, w) in zip(keys, outs, strict=True):
+        prev = done.get((suite, spec), (name, [], 0.0))
+        done[(suite, spec)] = (name, prev[1] + rec, prev[2] + w)
+    return {k: (name, sorted(rec, key=lambda r: r["episode"]), w)
+            for k, (name, rec, w) in done.items()}
+
+
+def _per_rig_tasks(spec: str, eps: list[tuple[str, Conditions]]) -> list[list[str] | None]:
+    """How a (suite, policy) pair is split into tasks: one per rig for a baseline commissioned
+    per rig (``mpc-rig``: each rig's strokes, fit and episodes are independent) on a suite of
+    several rigs, else one task (``[None]``: the whole suite in one batch, as the numbers of a
+    batch depend on its episodes' shared sensor noise)."""
+    from .commissioning import rig_groups
+
+    name, path, _ = parse_spec(spec)
+    groups = rig_groups(eps)
+    if path is None and getattr(BASELINES.get(name), "commissioned_per_rig", False) \
+            and len(groups) > 1:
+        return [[r] for r in groups]
+    return [None]
 
 
 def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed: int,
@@ -104,7 +142,9 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
     ``progress``: a progress bar over the policies of each suite. ``workers`` /
     ``ray_address``: every (suite, policy) pair as a task of :func:`pneugym.parallel.run_tasks`
-    (each worker loads its model from the spec's path; the numbers are the same);
+    (each worker loads its model from the spec's path; the numbers are the same), and every rig
+    of a suite a task of its own for a policy commissioned per rig (``mpc-rig``; its wall time
+    is then its tasks' sum);
     ``commission``: options of ``mpc-rig``'s commissioning fits (``starts``, ``max_nfev``)."""
     env_config = evaluation_env_config(env_config)
     check_policy_specs(policies)
@@ -114,16 +154,19 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     results: dict[str, Any] = {"suites": {}}
     parallel = backend_name(workers, ray_address) != "serial"
     done: dict[tuple[str, str], tuple[str, list[dict[str, Any]], float]] = {}
-    if parallel:
-        pairs = [(suite, spec) for suite in suites for spec in names]
+    suite_eps = {suite: suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+                 for suite in suites}
+    if parallel:  # a task per (suite, policy) pair, or per rig of a policy commissioned per rig
+        keys = [(suite, spec, rigs) for suite in suites for spec in names
+                for rigs in _per_rig_tasks(spec, suite_eps[suite])]
         outs = run_tasks(policy_records, [
             {"spec": _absolute(spec), "suite": suite, "episodes": episodes, "seed": seed,
-             "env_config": env_config, "commission": dict(commission or {})}
-            for suite, spec in pairs], workers, ray_address,
+             "env_config": env_config, "commission": dict(commission or {}), "rigs": rigs}
+            for suite, spec, rigs in keys], workers, ray_address,
             progress, desc="evaluation")
-        done = dict(zip(pairs, outs))
+        done = gather(keys, outs)
     for suite in suites:
-        eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+        eps = suite_eps[suite]
         records: dict[str, list[dict[str, Any]]] = {}
         wall: dict[str, float] = {}
         for spec in tqdm(names, desc=f"{suite} suite", unit="policy",
