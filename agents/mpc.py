@@ -288,6 +288,18 @@ def fit_trace(measured: np.ndarray, make_rig: Callable[[np.ndarray], RigParams],
     return from_unit(sol.x), sol.x
 
 
+def expected_best(returns: Mapping[float, float], margin_s: float) -> float:
+    """The cut-off time whose mean return among the tried times within ``margin_s`` either side
+    is best: the expected return when the model misplaces the cut's effects by up to
+    ``margin_s`` (``inf``, never cutting, stands for itself)."""
+    finite = sorted(t for t in returns if math.isfinite(t))
+    mean = {t: float(np.mean([returns[s] for s in finite if abs(s - t) <= margin_s + 1e-9]))
+            for t in finite}
+    if math.inf in returns:
+        mean[math.inf] = returns[math.inf]
+    return max(mean, key=mean.get)
+
+
 def robust_best(returns: Mapping[float, float], margin_s: float) -> float:
     """The cut-off time whose worst return among the tried times within ``margin_s`` either side
     is best (``inf``, never cutting, stands for itself)."""

@@ -30,38 +30,54 @@ from pneugym.envs import Conditions, conventional_figures
 from pneugym.plant import RigWarning, SimulationError
 from pneugym.rigfile import rig_fields
 
-from .mpc import robust_best
+from .mpc import expected_best, robust_best
 from .oracle import OraclePolicy, TimedCutPolicy, search_cuts
 
 #: how the evaluation commissions a model per rig (:func:`pneugym.commission.commission`'s
 #: options; ``pneugym evaluate --commission-starts/--commission-nfev`` set them)
 COMMISSION_OPTIONS: dict[str, Any] = {"starts": 2, "max_nfev": 40, "n_jobs": 2}
 
-#: the rig fields a member may change against the fitted rig (what the fit estimates)
+#: the rig fields a member may change against the fitted rig (what the fit estimates, and the
+#: model form: :attr:`pneugym.commission.Commissioned.alternatives`)
 MEMBER_FIELDS = (
     "valve.delay_s", "valve.area_m2", "valve.exhaust_area_m2", "cylinder.port_area_m2",
     "friction.static_n", "friction.coulomb_n", "friction.viscous_n_s_per_m",
     "cylinder.cushion_length_m", "cylinder.cushion_factor_drive",
     "cylinder.cushion_factor_exhaust", "effects.leak_drive_area_m2",
     "effects.leak_piston_area_m2", "effects.heat_transfer_time_constant_s",
-    "effects.sensor_lag_s", "effects.stribeck_force_n", "effects.stribeck_velocity_m_s")
+    "effects.sensor_lag_s", "effects.stribeck_force_n", "effects.stribeck_velocity_m_s",
+    "line.model", "valve.flow_model", "solver.dt_s")
+#: how a plan picks its cut from the plausible rigs' mean returns (RigModelPolicy's ``rule``)
+RULES = {"mean": expected_best, "worst": robust_best}
+#: of those, the model form (and its substep): another form's fit differs in them
+FORM_FIELDS = ("line.model", "valve.flow_model", "solver.dt_s")
 
 
 class RigModelPolicy(TimedCutPolicy):
     """Plans its cut on a commissioned model of the rig (module docstring). ``model``: a
     :class:`~pneugym.commission.Commissioned` or the folder ``pneugym commission`` wrote (or
     ``None``: give one with :meth:`commission` before the first stroke); ``members``: plausible
-    rigs the plan averages over (1: the fitted rig alone); ``margin_periods``: half-width of the
-    robust choice; ``coarse``: the search's coarse grid in control periods. The observation must
-    hold the payload (``observe_rig=True``, as every evaluation has)."""
+    rigs the plan averages over (1: the fitted rig alone); ``spread``: their spread, times the
+    fit's standard deviations (:meth:`~pneugym.commission.Commissioned.members`); ``forms``:
+    the best fits of the other model forms the strokes cannot rule out among them;
+    ``margin_periods``: half-width of the choice's window; ``rule``: ``"worst"`` (the cut whose
+    worst return within the window is best, :func:`agents.mpc.robust_best`) or ``"mean"``
+    (whose mean, :func:`agents.mpc.expected_best`); ``coarse``: the search's coarse grid in
+    control periods (1: every period). The observation must hold the payload
+    (``observe_rig=True``, as every evaluation has)."""
 
     name = "mpc-rig"
     #: the evaluation commissions a model per rig when none is given (agents.evaluation.run)
     commissioned_per_rig = True
 
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
-                 model: Any = None, members: int = 8, margin_periods: int = 3, coarse: int = 4, seed: int = 0):
+                 model: Any = None, members: int = 8, spread: float = 1.0, forms: bool = False,
+                 margin_periods: int = 3, rule: str = "worst", coarse: int = 4, seed: int = 0):
         super().__init__(layout, math.inf)
+        if not (isinstance(spread, (int, float)) and 0 <= spread < math.inf):
+            raise ValueError(f"spread = {spread!r} must be a finite number >= 0")
+        if rule not in RULES:
+            raise ValueError(f"rule = {rule!r}: choose from {tuple(RULES)}")
         for name, v, lo in (("members", members, 1), ("margin_periods", margin_periods, 0),
                             ("coarse", coarse, 1)):
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
@@ -74,6 +90,7 @@ class RigModelPolicy(TimedCutPolicy):
         self.env_config = {k: v for k, v in dict(env_config or {}).items()
                            if k not in ("preset", "conditions", "render_mode", "rig")}
         self.n_members, self.margin, self.coarse, self.seed = members, margin_periods, coarse, seed
+        self.rule, self.spread, self.forms = rule, float(spread), bool(forms)
         self.period = float(layout["control_period_s"])
         self.window = float(self.env_config.get("decision_window_s", 0.02))
         self.model = None
@@ -101,7 +118,7 @@ class RigModelPolicy(TimedCutPolicy):
                              f"{type(model).__name__}")
         self.model = model
         self.source = f"mpc-rig on a model of {', '.join(model.runs) or 'measured runs'}"
-        self.rigs = model.members(self.n_members, self.seed)
+        self.rigs = model.members(self.n_members, self.seed, self.spread, self.forms)
         self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig},
                                     coarse=self.coarse, seed=self.seed)
         fitted = rig_fields(model.rig)
@@ -167,5 +184,5 @@ class RigModelPolicy(TimedCutPolicy):
                             for tc in cands[k]} for k in cands}
 
             for k, js in search_cuts(score, ranges, self.period, self.coarse).items():
-                self._plans[points[k]] = robust_best(js, self.margin * self.period)
+                self._plans[points[k]] = RULES[self.rule](js, self.margin * self.period)
         return {p: self._plans[p] for p in points}

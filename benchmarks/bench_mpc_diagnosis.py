@@ -46,7 +46,7 @@ def main(argv=None) -> dict:
     from agents.evaluation.commissioning import commissioning_runs
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
     from agents.evaluation.suites import family_draws
-    from agents.mpc_rig import MEMBER_FIELDS
+    from agents.mpc_rig import FORM_FIELDS, MEMBER_FIELDS
     from agents.oracle import OraclePolicy
     from pneugym.envs import Conditions, conventional_figures
     from pneugym.envs.cutoff import CutOffVectorEnv
@@ -87,7 +87,8 @@ def main(argv=None) -> dict:
             "misfit": m.misfit, "extras": list(m.extras),
             "line": [truth.line.model, m.rig.line.model],
             "orifice": [truth.valve.flow_model, m.rig.valve.flow_model],
-            "fields": {k: [tf.get(k), ff.get(k)] for k in MEMBER_FIELDS},
+            "fields": {k: [tf.get(k), ff.get(k)] for k in MEMBER_FIELDS
+                       if k not in FORM_FIELDS},
             "plan_s": plan, "truth_best_s": best, "truth_at_best": j_truth[best],
             "truth_at_plan": None if near is None else j_truth[near],
             "cut_s": ts, "truth": [j_truth[t] for t in ts], "fitted": [per[0][t] for t in ts],

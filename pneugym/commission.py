@@ -47,6 +47,14 @@ FAST_AREA_FACTOR = 2.0
 AREAS = ("valve.area_m2", "valve.exhaust_area_m2", "cylinder.port_area_m2")
 #: the supply-line models a fit tries (pneugym.params.LineParams.model)
 LINE_MODELS = ("fd", "lumped")
+#: the orifice laws a fit may try (pneugym.params.ValveParams.flow_model; ``orifice_models``):
+#: each line model's best fit with the stated law is fitted again, from there, with the others
+ORIFICE_MODELS = ("thesis", "iso6358")
+#: another form's best fit (line model, orifice law) is kept beside the best
+#: (:attr:`Commissioned.alternatives`, named in the report, a plausible rig on request) when
+#: ``N_eff ln(SSR_form / SSR_best) < FORM_DELTA``: its Akaike weight is over 5 % of the best's,
+#: so the strokes cannot tell the two apart
+FORM_DELTA = 6.0
 #: the rise of the driving-port pressure [Pa] that marks the valve's opening (the delay's guess)
 RISE_PA = 5e3
 
@@ -151,6 +159,11 @@ class Commissioned:
     runs: list[str] = field(default_factory=list)
     nrmse: dict[str, dict[str, float]] = field(default_factory=dict)
     extras: list[str] = field(default_factory=list)
+    #: the best fits of the other forms the strokes cannot tell from this one (:data:`FORM_DELTA`)
+    alternatives: list[RigParams] = field(default_factory=list)
+    alternative_misfits: list[float] = field(default_factory=list)
+    #: each alternative's ``N_eff ln(SSR_form / SSR_best)`` (twice its log-likelihood deficit)
+    alternative_deltas: list[float] = field(default_factory=list)
 
     @property
     def misfit(self) -> float:
@@ -169,15 +182,20 @@ class Commissioned:
     def rig_base(self) -> RigParams:
         return self.stated.with_(solver={"dt_s": self.rig.solver.dt_s})
 
-    def members(self, n: int, seed: int = 0) -> list[RigParams]:
-        """``n`` plausible rigs: the fitted one, then ``n - 1`` draws from the fit's Laplace
-        approximation (within the parameters' bounds; a draw the rig refuses is redrawn)."""
+    def members(self, n: int, seed: int = 0, spread: float = 1.0,
+                forms: bool = False) -> list[RigParams]:
+        """``n`` plausible rigs: the fitted one, with ``forms`` the :attr:`alternatives` (other
+        model forms the strokes cannot rule out), then draws from the fit's Laplace
+        approximation with its standard deviations times ``spread`` (within the parameters'
+        bounds; a draw the rig refuses is redrawn)."""
         if n < 1:
             raise ValueError(f"members n = {n!r} must be >= 1")
-        out = [self.rig]
+        if not (isinstance(spread, (int, float)) and 0 <= spread < math.inf):
+            raise ValueError(f"members spread = {spread!r} must be a finite number >= 0")
+        out = [self.rig, *(self.alternatives if forms else [])][:n]
         rng = np.random.default_rng([seed, 29])
         w, V = np.linalg.eigh(0.5 * (self.cov_u + self.cov_u.T))
-        L = V * np.sqrt(np.clip(w, 0.0, None))
+        L = V * np.sqrt(np.clip(w, 0.0, None)) * spread
         lo = np.array([p.u_bounds[0] for p in self.params])
         hi = np.array([p.u_bounds[1] for p in self.params])
         tries = 0
@@ -200,7 +218,11 @@ class Commissioned:
                 "cov_u": [[float(v) for v in row] for row in self.cov_u],
                 "ssr": float(self.ssr), "n": int(self.n), "kappa": float(self.kappa),
                 "misfit": self.misfit, "runs": list(self.runs), "nrmse": self.nrmse,
-                "extras": list(self.extras), "std": self.std(), "provenance": provenance()}
+                "extras": list(self.extras), "std": self.std(),
+                "alternatives": [r.to_dict() for r in self.alternatives],
+                "alternative_misfits": [float(v) for v in self.alternative_misfits],
+                "alternative_deltas": [float(v) for v in self.alternative_deltas],
+                "provenance": provenance()}
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "commissioning") -> "Commissioned":
@@ -213,6 +235,10 @@ class Commissioned:
             k = len(params)
             values, u = np.array(d["values"], float), np.array(d["u"], float)
             cov = np.array(d["cov_u"], float)
+            if not (len(d.get("alternatives", [])) == len(d.get("alternative_misfits", []))
+                    == len(d.get("alternative_deltas", []))):
+                raise ValueError("alternatives, alternative_misfits and alternative_deltas "
+                                 "must pair up")
             if values.shape != (k,) or u.shape != (k,) or cov.shape != (k, k) or not (
                     np.isfinite(values).all() and np.isfinite(u).all()
                     and np.isfinite(cov).all()):
@@ -221,7 +247,10 @@ class Commissioned:
                        stated=RigParams.from_dict(d["stated"]), params=params, values=values,
                        u=u, cov_u=cov, ssr=float(d["ssr"]), n=int(d["n"]),
                        kappa=float(d["kappa"]), runs=[str(r) for r in d.get("runs", [])],
-                       nrmse=dict(d.get("nrmse", {})), extras=list(d.get("extras", [])))
+                       nrmse=dict(d.get("nrmse", {})), extras=list(d.get("extras", [])),
+                       alternatives=[RigParams.from_dict(r) for r in d.get("alternatives", [])],
+                       alternative_misfits=[float(v) for v in d.get("alternative_misfits", [])],
+                       alternative_deltas=[float(v) for v in d.get("alternative_deltas", [])])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
@@ -269,15 +298,20 @@ def _stated_rig(runs: Sequence[MeasuredRun], base: RigParams | None) -> RigParam
 
 def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigParams | None = None,
                *, starts: int = 2, max_nfev: int = 40, extras: bool = True,
-               line_models: Sequence[str] | None = LINE_MODELS, seed: int = 0, n_jobs: int = 1,
-               max_samples: int = MAX_SAMPLES) -> Commissioned:
+               line_models: Sequence[str] | None = LINE_MODELS,
+               orifice_models: Sequence[str] | None = None, seed: int = 0,
+               n_jobs: int = 1, max_samples: int = MAX_SAMPLES) -> Commissioned:
     """Fit the rig model to measured ``runs`` (objects, or files / folders of the measured-run
     format; ``base`` fills what their ``rig`` sections leave out). ``starts``: least-squares
     starts (the first at the rig file's values and the delay the runs show, the others drawn
     within the bounds) for each supply-line model of ``line_models`` (a rig file rarely says
-    how its line behaves; ``None``: the stated one only), all in ``n_jobs`` processes; the best
-    fit wins. ``extras``: then try :data:`EXTRA_PARAMS` (kept if significant, :data:`EXTRA_P`).
-    Raises ``ValueError`` on no runs, runs of different rigs or bad options."""
+    how its line behaves; ``None``: the stated one only), all in ``n_jobs`` processes; each line
+    model's best fit is then fitted again with every other orifice law of ``orifice_models``
+    (default ``None``: the stated one only; docs/policies.md says why). The best fit wins; the
+    other forms the strokes cannot rule out (:data:`FORM_DELTA`) stay as
+    :attr:`Commissioned.alternatives`. ``extras``: then try :data:`EXTRA_PARAMS` (kept if
+    significant, :data:`EXTRA_P`). Raises ``ValueError`` on no runs, runs of different rigs or
+    bad options."""
     for name, v, lo in (("starts", starts, 1), ("max_nfev", max_nfev, 1),
                         ("n_jobs", n_jobs, 1), ("max_samples", max_samples, 100)):
         if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
@@ -289,10 +323,8 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         raise ValueError("commission: no runs given (record a conventional stroke and one cut "
                          "off on arrival: pneugym.commission.commissioning_protocol)")
     stated = _stated_rig(runs, base)
-    forms = [stated.line.model, *(m for m in (line_models or ()) if m != stated.line.model)]
-    for m in forms:
-        if m not in LINE_MODELS:
-            raise ValueError(f"commission line model {m!r}: choose from {LINE_MODELS}")
+    lines = _forms(stated.line.model, line_models, LINE_MODELS, "line model")
+    laws = _forms(stated.valve.flow_model, orifice_models, ORIFICE_MODELS, "orifice law")
     prepared, _ = prepare(runs, [r.rig(base) for r in runs], max_samples)
     sigma = estimate_noise(prepared)
     params = fitted_params(stated)
@@ -303,29 +335,72 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
                       (p.start or (p.lo, p.hi))[0] for p in params])
     starts_u = [first] + [np.array([v if p.path == "valve.delay_s" else p.draw(rng)
                                     for p, v in zip(params, first)]) for _ in range(starts - 1)]
-    form_rigs = {m: [r.rig(base).with_(line={"model": m}) for r in runs] for m in forms}
-    jobs, which = [], []
-    for m in forms:
-        bases = [fixed_step(g, fast) for g in form_rigs[m]]
-        for s in starts_u:
-            jobs.append(Job(prepared, bases, sigma, fast, _inside(s, fast), max_nfev))
-            which.append(m)
+    form_rigs = {(m, o): [r.rig(base).with_(line={"model": m}, valve={"flow_model": o})
+                          for r in runs] for m in lines for o in laws}
+    form_bases = {f: [fixed_step(g, fast) for g in rigs] for f, rigs in form_rigs.items()}
+    jobs = [Job(prepared, form_bases[m, laws[0]], sigma, fast, _inside(s, fast), max_nfev)
+            for m in lines for s in starts_u]
+    which = [(m, laws[0]) for m in lines for _ in starts_u]
     executor = Executor(n_jobs)
     try:
         results = executor.map(solve, jobs)
+        # each line model's best fit, again with every other orifice law (from its values)
+        prob = Problem(prepared, [], sigma, fast)
+        again = []
+        for m in lines:
+            k = min((i for i, f in enumerate(which) if f[0] == m), key=lambda i: results[i][1])
+            for o in laws[1:]:
+                again.append(Job(prepared, form_bases[m, o], sigma, fast,
+                                 _inside(prob.values(results[k][0]), fast), max_nfev))
+                which.append((m, o))
+        jobs += again
+        results += executor.map(solve, again)
         return _finish(results, jobs, which, form_rigs, stated, prepared, sigma, params, runs,
                        max_nfev, extras, executor)
     finally:
         executor.close()
 
 
+def _forms(stated: str, tried: Sequence[str] | None, known: Sequence[str], what: str) -> list[str]:
+    """The stated model form first, then the others of ``tried`` (checked against ``known``)."""
+    out = [stated, *(m for m in (tried or ()) if m != stated)]
+    for m in out:
+        if m not in known:
+            raise ValueError(f"commission {what} {m!r}: choose from {tuple(known)}")
+    return out
+
+
+def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, list, list]:
+    """The best fit of every form other than ``which[best]`` that the strokes cannot rule out
+    (:data:`FORM_DELTA`): rigs, misfits and deltas."""
+    prob = Problem(prepared, jobs[best].bases, sigma, jobs[best].params)
+    _, n_eff = inflation([x for _, _, x in prob.segments(prob.values(results[best][0]))])
+    ssr_best = results[best][1]
+    rigs, misfits, deltas = [], [], []
+    for form in dict.fromkeys(which):
+        if form == which[best]:
+            continue
+        k = min((i for i, f in enumerate(which) if f == form), key=lambda i: results[i][1])
+        ssr = results[k][1]
+        delta = n_eff * math.log(max(ssr, 1e-300) / max(ssr_best, 1e-300))
+        if delta < FORM_DELTA:  # (a failed fit's inf / nan is not)
+            p = Problem(prepared, jobs[k].bases, sigma, jobs[k].params)
+            rigs.append(apply(jobs[k].bases[0], p.params, p.values(results[k][0])))
+            misfits.append(float(ssr) / max(prob.n, 1))
+            deltas.append(float(delta))
+    return rigs, misfits, deltas
+
+
 def _finish(results, jobs, which, form_rigs, stated, prepared, sigma, params, runs, max_nfev,
             extras, executor) -> Commissioned:
     """The best of the first fits, refitted with the full area bounds if on their cap, then
-    with :data:`EXTRA_PARAMS` if they are significant."""
+    with :data:`EXTRA_PARAMS` if they are significant; the forms it cannot rule out beside it."""
     best = int(np.argmin([r[1] for r in results]))
     form, bases, fast = which[best], jobs[best].bases, jobs[best].params
-    rigs, stated = form_rigs[form], stated.with_(line={"model": form})
+    alternatives, alt_misfits, alt_deltas = _alternatives(results, jobs, which, best,
+                                                          prepared, sigma)
+    rigs = form_rigs[form]
+    stated = stated.with_(line={"model": form[0]}, valve={"flow_model": form[1]})
     u, ssr, jac, _ = results[best]
     prob = Problem(prepared, bases, sigma, fast)
     if any(p.path in AREAS and v >= 0.99 * FAST_AREA_FACTOR
@@ -355,7 +430,9 @@ def _finish(results, jobs, which, form_rigs, stated, prepared, sigma, params, ru
     return Commissioned(
         rig=apply(bases[0], params, values), stated=stated, params=params, values=values, u=u,
         cov_u=cov, ssr=float(ssr), n=prob.n, kappa=float(kappa), runs=[r.name for r in runs],
-        nrmse={r.name: nrmse([r], [s]) for r, s in zip(prepared, sims)}, extras=used)
+        nrmse={r.name: nrmse([r], [s]) for r, s in zip(prepared, sims)}, extras=used,
+        alternatives=alternatives, alternative_misfits=alt_misfits,
+        alternative_deltas=alt_deltas)
 
 
 def _inside(values: np.ndarray, params: Sequence[FitParam]) -> np.ndarray:
@@ -395,6 +472,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--jobs", type=int, default=1, help="processes for the starts (default 1)")
     ap.add_argument("--line-models", nargs="+", default=list(LINE_MODELS), choices=LINE_MODELS,
                     help="supply-line models to try; the best fit wins (default: both)")
+    ap.add_argument("--orifice-models", nargs="+", default=None, choices=ORIFICE_MODELS,
+                    help="orifice laws to try, each from each line model's best fit; the best "
+                         "fit wins (default: the stated one, the rig file's or 'thesis')")
     ap.add_argument("--no-extras", action="store_true",
                     help="do not try heat exchange and Stribeck friction")
     ap.add_argument("--seed", type=int, default=0,
@@ -409,7 +489,8 @@ def report_markdown(m: Commissioned) -> str:
     lines = ["# Commissioned rig model", "",
              f"Runs: {', '.join(m.runs)}. Misfit SSR/N = {m.misfit:.2f} (about 1 when the model "
              f"reproduces the strokes to the noise; inflation kappa {m.kappa:.1f}); supply line "
-             f"modelled as {m.stated.line.model!r}.", "",
+             f"modelled as {m.stated.line.model!r}, orifices by the "
+             f"{m.stated.valve.flow_model!r} law.", "",
              "| parameter | stated | fitted | ± (1 s.e.) |", "|---|---|---|---|"]
     for p, v in zip(m.params, m.values):
         stated = p.stated(m.stated) if p.path != "valve.delay_s" else m.stated.valve_delay_s
@@ -421,6 +502,12 @@ def report_markdown(m: Commissioned) -> str:
         lines.append(f"- {run}: " + ", ".join(f"{k} {v:.4f}" for k, v in ch.items()))
     if m.extras:
         lines += ["", f"Kept beyond the base set: {', '.join(m.extras)}."]
+    if m.alternatives:
+        forms = ", ".join(f"{r.line.model!r} line with the {r.valve.flow_model!r} law (misfit "
+                          f"{v:.2f})" for r, v in zip(m.alternatives, m.alternative_misfits))
+        lines += ["", f"The strokes cannot rule out: {forms}. Strokes at other operating "
+                  f"points (a low supply pressure, where the orifice laws part most) may tell "
+                  f"them apart."]
     if not m.misfit <= MISFIT_FLAG:
         lines += ["", f"**The misfit exceeds {MISFIT_FLAG:g}**: the residuals are over three "
                   f"times the noise's. Check the runs and the rig file, and fit again with more "
@@ -467,7 +554,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         base = as_rig(a.rig) if a.rig else None
         runs = read_runs(a.runs, base)
         m = commission(runs, base, starts=a.starts, max_nfev=a.max_nfev,
-                       extras=not a.no_extras, line_models=a.line_models, seed=a.seed,
+                       extras=not a.no_extras, line_models=a.line_models,
+                       orifice_models=a.orifice_models, seed=a.seed,
                        n_jobs=a.jobs)
     except (ValueError, OSError) as exc:
         print(f"pneugym commission: {exc}", file=sys.stderr)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,8 +16,9 @@ from agents.evaluation.commissioning import DATASHEET_FIELDS, rig_file, rig_grou
 from agents.evaluation.specs import evaluation_env_config
 from agents.mpc_rig import RigModelPolicy
 from agents.oracle import OraclePolicy
-from pneugym.commission import (Commissioned, commission, commissioning_protocol, delay_guess,
-                                fitted_params, main, report_markdown)
+from pneugym.commission import (ORIFICE_MODELS, Commissioned, commission,
+                                commissioning_protocol, delay_guess, fitted_params, main,
+                                report_markdown)
 from pneugym.data import write_run
 from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
@@ -82,10 +84,15 @@ def test_the_model_round_trips_and_draws_plausible_rigs(model, tmp_path):
                for r in rigs)
     assert model.members(5, seed=1) == rigs  # seeded
 
+    def dev(rs):
+        return np.mean([abs(r.friction.static_n - model.rig.friction.static_n) for r in rs[1:]])
+
+    assert dev(model.members(5, seed=1, spread=2.0)) > 1.5 * dev(rigs)  # twice the deviations
+    with pytest.raises(ValueError, match="spread"):
+        model.members(5, spread=-1.0)
+
 
 def test_the_report_flags_a_fit_far_above_the_noise(model):
-    from dataclasses import replace
-
     assert "exceeds" not in report_markdown(model)
     bad = replace(model, ssr=50.0 * model.n)  # a misfit of 50
     assert "Misfit SSR/N = 50.00" in report_markdown(bad)
@@ -151,6 +158,10 @@ def test_refusals(runs, model, tmp_path):
         RigModelPolicy.for_env(CutOffVectorEnv(num_envs=1))
     with pytest.raises(ValueError, match="members"):
         RigModelPolicy.for_env(env, members=0)
+    with pytest.raises(ValueError, match="spread"):
+        RigModelPolicy.for_env(env, spread=math.nan)
+    with pytest.raises(ValueError, match="rule"):
+        RigModelPolicy.for_env(env, rule="best")
     from agents.registry import load_policy
 
     with pytest.raises(ValueError, match="no overrides"):
@@ -168,6 +179,50 @@ def test_the_fit_chooses_the_supply_line_model_the_strokes_show():
                       line_models=None).rig.line.model == "fd"  # the stated one only
     with pytest.raises(ValueError, match="line model"):
         commission(runs, line_models=("tube",))
+
+
+def test_the_fit_chooses_the_orifice_law_the_strokes_show():
+    """At 1.5 bar the flows are mostly subsonic, where the thesis's law and ISO 6358 part."""
+    known = KNOWN.with_(supply_pressure_gauge_pa=1.5e5)
+    runs = commissioning_protocol(known.with_(valve={"flow_model": "iso6358"}), known, seed=4)
+    fit = {"starts": 1, "max_nfev": 3, "extras": False, "line_models": None}
+    m = commission(runs, orifice_models=ORIFICE_MODELS, **fit)
+    assert m.stated.valve.flow_model == "iso6358" and m.rig.valve.flow_model == "iso6358"
+    assert m.alternatives == [] and m.alternative_deltas == []  # the strokes rule the other out
+    assert commission(runs, **fit).rig.valve.flow_model == "thesis"  # the stated law only
+    assert "'iso6358' law" in report_markdown(m)
+    with pytest.raises(ValueError, match="orifice law"):
+        commission(runs, orifice_models=("sharp-edged",))
+
+
+def test_other_forms_the_strokes_cannot_rule_out_join_the_plausible_rigs(runs, model, tmp_path,
+                                                                         monkeypatch):
+    import pneugym.commission as C
+
+    monkeypatch.setattr(C, "FORM_DELTA", math.inf)  # every other form: the other line model
+    fit = {"starts": 1, "max_nfev": 2, "extras": False, "orifice_models": None}
+    m = commission(runs, **fit)
+    assert len(m.alternatives) == 1
+    assert {m.rig.line.model, m.alternatives[0].line.model} == {"fd", "lumped"}
+    assert m.alternative_deltas[0] >= 0 and m.alternative_misfits[0] >= m.misfit * 0.999
+    monkeypatch.setattr(C, "FORM_DELTA", -1.0)  # none
+    assert commission(runs, **fit).alternatives == []
+    alt = model.rig.with_(valve={"flow_model": "iso6358"})
+    both = replace(model, alternatives=[alt], alternative_misfits=[1.3], alternative_deltas=[2.5])
+    rigs = both.members(4, seed=1, forms=True)
+    assert rigs[:2] == [model.rig, alt] and rigs[2:] == model.members(3, seed=1)[1:]
+    assert both.members(4, seed=1) == model.members(4, seed=1)  # only when asked
+    assert Commissioned.load(both.save(tmp_path)).alternatives == [alt]  # round trip
+    assert "cannot rule out: 'fd' line with the 'iso6358' law (misfit 1.30)" in \
+        report_markdown(both)
+    env = CutOffVectorEnv(num_envs=1, observe_rig=True)
+    pol = RigModelPolicy.for_env(env, model=both, members=3, forms=True)
+    assert pol.changes[1] == (("valve.flow_model", "iso6358"),)  # planned on with its law
+    bad = both.to_dict()
+    bad["alternative_deltas"] = []
+    (tmp_path / "commissioning.json").write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match="pair up"):
+        Commissioned.load(tmp_path)
 
 
 def test_the_fitted_parameters_stay_physical():

@@ -7,7 +7,7 @@ import pytest
 from agents.base import run_first_episodes
 from agents.mpc import (
     HIDDEN, ModelPredictivePolicy, fit_trace, from_unit, hidden_members, nominal, rig_changes,
-    robust_best, to_unit, with_changes,
+    expected_best, robust_best, to_unit, with_changes,
 )
 from agents.oracle import OraclePolicy
 from pneugym.envs import Conditions
@@ -66,6 +66,23 @@ def test_robust_best_steps_back_from_a_cliff():
     assert robust_best(returns, 0.0) == pytest.approx(2 * p)
     assert robust_best(returns, p) == pytest.approx(3 * p)  # its neighbours 2p, 4p are safe
     assert robust_best({math.inf: -1.0, p: -2.0}, p) == math.inf
+
+
+def test_expected_best_takes_the_widest_good_window_not_a_lone_peak():
+    """A lone best cut between stalls, a wide window of good cuts, and a flat late plateau (a
+    stick-slip): the mean within the margin takes the window; the worst within it the plateau,
+    as one stall inside any window rules it out."""
+    p = PERIOD
+    js = [-0.05, -3.0, -0.1, -0.12, -3.0, -0.11, -0.1, -0.1, -0.1, -0.12, -3.0, -0.6, -0.6, -0.6,
+          -0.6]
+    returns = {k * p: j for k, j in enumerate(js)}
+    returns[math.inf] = -0.7
+    assert expected_best(returns, 0.0) == robust_best(returns, 0.0) == 0.0  # the lone peak
+    assert expected_best(returns, p) == pytest.approx(7 * p)  # the window's middle
+    assert robust_best(returns, p) == pytest.approx(7 * p)
+    assert 5 * p <= expected_best(returns, 3 * p) <= 9 * p  # still in the window
+    assert robust_best(returns, 3 * p) == pytest.approx(14 * p)  # the plateau
+    assert expected_best({math.inf: -1.0, p: -2.0}, p) == math.inf
 
 
 def test_fit_recovers_a_rig_from_its_stroke():

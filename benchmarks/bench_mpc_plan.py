@@ -1,0 +1,189 @@
+"""Which commissioning and which plan serve ``mpc-rig`` best: the orifice law tried or not, and
+the plausible rigs and rule a plan picks its cut with.
+
+On ``bench_mpc.py``'s fresh family draws (the same ``--seed``, the same draws, the same two
+simulated strokes per rig) it commissions each draw's rig as ``mpc-rig`` does, once with the
+stated orifice law only (``mpc-rig``'s default) and once trying both laws
+(``pneugym commission --orifice-models thesis iso6358``). For each fit it scores every cut-off
+time, on every control period, on the rig's truth (what the oracle searches) and on the plausible
+rigs of every plan setting: ``--spreads`` (the Laplace draws' standard deviations times this),
+with and without the other model forms the strokes cannot rule out (``forms``), ``--members``
+plausible rigs each.
+Every rule (``worst`` / ``mean`` return within ``--margins`` control periods either side) then
+picks its cut, and the truth's return at that cut is the episode's (``mpc-rig`` cuts on the
+clock). Reports the oracle fraction of every setting over all draws, the orifice law found
+against the truth's, and writes ``mpc_plan.json`` and ``mpc_plan.png``.
+
+The plans here search every control period (``RigModelPolicy(coarse=1)``); ``mpc-rig`` searches
+every fourth, then every period around its three best, and took the same cuts on all 40
+validation draws.
+
+    python benchmarks/bench_mpc_plan.py --seed 3000000    # validation draws, about 2 h on 2 cores
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from common import ROOT  # noqa: F401  (the checkout on sys.path)
+
+LAWS = {"stated law": None, "both laws": ("thesis", "iso6358")}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--episodes", type=int, default=40, help="family draws (one episode each)")
+    ap.add_argument("--seed", type=int, default=3_000_000,
+                    help="seed of the draws (bench_mpc.py's; default the validation draws)")
+    ap.add_argument("--spreads", type=float, nargs="+", default=[1.0, 2.0],
+                    help="spreads of the plausible rigs (times the fit's standard deviations)")
+    ap.add_argument("--margins", type=int, nargs="+", default=[0, 1, 3],
+                    help="half-widths of the rules' windows [control periods]")
+    ap.add_argument("--members", type=int, default=8, help="plausible rigs per plan (mpc-rig's 8)")
+    ap.add_argument("--out", default="bench/mpc-plan", help="folder for the results")
+    ap.add_argument("--commission-starts", type=int, default=None,
+                    help="least-squares starts per line model (default: mpc-rig's)")
+    ap.add_argument("--commission-nfev", type=int, default=None,
+                    help="evaluations per least-squares start (default: mpc-rig's)")
+    args = ap.parse_args(argv)
+    if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
+        ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
+    from tqdm import tqdm
+
+    from agents.evaluation.commissioning import commissioning_runs
+    from agents.evaluation.run import oracle_fraction, run_policy
+    from agents.evaluation.specs import evaluation_env_config, make_named_policy
+    from agents.evaluation.suites import family_draws
+    from pneugym.commission import commission
+    from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.provenance import provenance
+
+    cfg = evaluation_env_config({})
+    probe = CutOffVectorEnv(num_envs=1, **cfg)
+    conds = family_draws(args.seed, args.episodes)  # the draws of bench_mpc.py
+    ref = {spec: [float(v) for v in run_policy(make_named_policy(spec, probe)[1], conds, cfg,
+                                               args.seed)["objective"]]
+           for spec in ("conventional", "oracle")}
+    _, policy = make_named_policy("mpc-rig", probe)
+    policy.n_members = args.members
+    opts = dict(policy.commission_options)
+    opts.update({k: v for k, v in (("starts", args.commission_starts),
+                                   ("max_nfev", args.commission_nfev)) if v is not None})
+    settings = [(law, s, forms) for law in LAWS for s in args.spreads for forms in (False, True)]
+    draws = []
+    for g, c in enumerate(tqdm(conds, desc="commissioning", unit="rig")):
+        runs = commissioning_runs(c.rig_changes, probe.rig, args.seed, g)
+        truth = {k: v for k, v in c.rig_changes if k in ("line.model", "valve.flow_model")}
+        d = {"draw": g, "truth_form": [truth.get("line.model"), truth.get("valve.flow_model")],
+             "fits": {}, "returns": {}}
+        truth_j: dict = {}
+        plans: dict = {}  # mean returns by plausible rigs (forms adds none where none is kept)
+        for law, laws in LAWS.items():
+            t0 = time.perf_counter()
+            model = commission(runs, orifice_models=laws, **opts)
+            d["fits"][law] = {"form": [model.rig.line.model, model.rig.valve.flow_model],
+                              "misfit": model.misfit, "seconds": time.perf_counter() - t0,
+                              "alternatives": [[r.line.model, r.valve.flow_model, dv] for r, dv
+                                               in zip(model.alternatives,
+                                                      model.alternative_deltas)]}
+            for _, s, forms in (x for x in settings if x[0] == law):
+                policy.spread, policy.forms = s, forms
+                policy.set_model(model)
+                key = (law, tuple(policy.changes))
+                mean = plans[key] = plans.get(key) or _scores(policy, c, probe.rig, truth_j)
+                for rule in ("worst", "mean"):
+                    for m in args.margins:
+                        t = _pick(mean, policy.period, rule, m)
+                        d["returns"][_key(law, s, forms, rule, m)] = truth_j[t]
+        draws.append(d)
+    conv, orc = float(np.mean(ref["conventional"])), float(np.mean(ref["oracle"]))
+    table = {k: oracle_fraction(float(np.mean([d["returns"][k] for d in draws])), conv, orc)
+             for k in draws[0]["returns"]}
+    for k, f in sorted(table.items(), key=lambda kv: -kv[1]):
+        print(f"{k:50s} oracle fraction {f:.3f}")
+    right = {law: sum(d["fits"][law]["form"][1] == d["truth_form"][1] for d in draws)
+             for law in LAWS}
+    print(f"orifice law as the truth's: {right['both laws']} of {len(draws)} draws trying both")
+    result = {"fractions": table, "orifice_law_right": right, "draws": draws, "reference": ref,
+              "config": {**vars(args), "commission": opts}, "provenance": provenance()}
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "mpc_plan.json").write_text(json.dumps(result, indent=2, default=_num))
+    _plot(table, out_dir / "mpc_plan.png")
+    print(f"wrote {out_dir / 'mpc_plan.json'} and .png")
+    return result
+
+
+def _key(law: str, spread: float, forms: bool, rule: str, margin: int) -> str:
+    return f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
+
+
+def _num(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _scores(policy, c, base, truth_j: dict) -> dict:
+    """Every cut's mean return over ``policy``'s plausible rigs, on the control-period grid
+    up to the latest of their and the truth's stroke ends plus the decision window (``mpc-rig``'s
+    range); ``truth_j`` (the truth's returns, by cut) is filled in for every cut of the grid.
+    ``{}`` when no plausible rig completes a stroke (``mpc-rig`` then never cuts)."""
+    from agents.oracle import OraclePolicy
+    from pneugym.envs import Conditions, conventional_figures
+    from pneugym.plant import SimulationError
+
+    point = (round(float(c.supply_pressure_gauge_pa), 0), round(float(c.load_mass_kg), 4))
+    quiet = dataclasses.replace(c, position_noise_m=0.0, pressure_noise_pa=0.0)
+    members, ends = {}, [conventional_figures(quiet.rig(base), quiet.dip,
+                                              period_s=policy.period)[0]]
+    for j, ch in enumerate(policy.changes):
+        mc = Conditions(supply_pressure_gauge_pa=point[0], load_mass_kg=point[1], rig_changes=ch)
+        try:
+            ends.append(conventional_figures(mc.rig(policy.model.rig), mc.dip,
+                                             period_s=policy.period)[0])
+            members[j] = mc
+        except (ValueError, SimulationError):
+            continue  # a plausible rig that cannot complete a stroke here (as in mpc-rig's plan)
+    if not members:
+        return {}
+    k1 = int(math.ceil((max(ends) + policy.window) / policy.period)) + 1
+    grid = [round(k * policy.period, 6) for k in range(k1 + 1)] + [math.inf]
+    missing = [t for t in grid if t not in truth_j]
+    if missing:
+        truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_cuts(
+            {0: quiet}, {0: missing})[0])
+    per = policy.planner.score_cuts(members, {j: grid for j in members})
+    return {t: float(np.mean([per[j][t] for j in per])) for t in grid}
+
+
+def _pick(mean: dict, period: float, rule: str, margin: int) -> float:
+    from agents.mpc_rig import RULES
+
+    return RULES[rule](mean, margin * period) if mean else math.inf
+
+
+def _plot(table: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted(table, key=table.get)
+    fig, ax = plt.subplots(figsize=(8, 0.22 * len(names) + 1.2))
+    ax.barh(names, [table[n] for n in names])
+    ax.set_xlim(min(0.5, min(table.values()) - 0.05), 1.0)
+    ax.set_xlabel("oracle fraction over all draws")
+    ax.tick_params(axis="y", labelsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
