@@ -373,6 +373,8 @@ def _forms(stated: str, tried: Sequence[str] | None, known: Sequence[str], what:
 def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, list, list]:
     """The best fit of every form other than ``which[best]`` that the strokes cannot rule out
     (:data:`FORM_DELTA`): rigs, misfits and deltas."""
+    if len(set(which)) == 1:  # one form tried: nothing to compare (and no extra simulation)
+        return [], [], []
     prob = Problem(prepared, jobs[best].bases, sigma, jobs[best].params)
     _, n_eff = inflation([x for _, _, x in prob.segments(prob.values(results[best][0]))])
     ssr_best = results[best][1]
