@@ -9,10 +9,14 @@ the fit's uncertainty. At the start of every stroke
 the policy reads the operating point it is told (the supply set-point and the payload, as every
 policy is) and plans on the model: it runs the plant ahead for every cut-off time (the oracle's
 search, :func:`agents.oracle.search_cuts`) on ``members`` plausible rigs (the fitted one and
-draws from the fit's uncertainty, :meth:`~pneugym.commission.Commissioned.members`), averages the
-return over them and cuts at the time whose worst average within ``margin_periods`` either side
-is best (:func:`agents.mpc.robust_best`): a cut on the edge of a stick-slip or a stall, which
-the model may misplace by a few ms, is given up for a little air (issue 12, part 5).
+draws from the fit's uncertainty at twice its standard deviations,
+:meth:`~pneugym.commission.Commissioned.members`), averages the return over them and cuts at the
+time whose mean average within ``margin_periods`` (one control period) either side is best
+(:func:`agents.mpc.expected_best`): a cut on the edge of a stick-slip or a stall, which the model
+may misplace by a few ms, is given up for a little air (issue 12, part 5). The wide spread puts
+the edge where rigs a little unlike the fitted one have it; the earlier plan (the fit's own
+spread, the worst return within three periods: ``spread=1, rule="worst", margin_periods=3``)
+did worse on 100 fresh family draws pooled (docs/policies.md).
 
 Plans are cached per operating point: on a real controller they are computed between strokes
 (about a second each on one core) and the stroke itself only compares the time with the plan.
@@ -71,8 +75,8 @@ class RigModelPolicy(TimedCutPolicy):
     commissioned_per_rig = True
 
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
-                 model: Any = None, members: int = 8, spread: float = 1.0, forms: bool = False,
-                 margin_periods: int = 3, rule: str = "worst", coarse: int = 4, seed: int = 0):
+                 model: Any = None, members: int = 8, spread: float = 2.0, forms: bool = False,
+                 margin_periods: int = 1, rule: str = "mean", coarse: int = 4, seed: int = 0):
         super().__init__(layout, math.inf)
         if not (isinstance(spread, (int, float)) and 0 <= spread < math.inf):
             raise ValueError(f"spread = {spread!r} must be a finite number >= 0")
@@ -153,6 +157,22 @@ class RigModelPolicy(TimedCutPolicy):
             self.t_cut_s[new] = [self._plans[p] for p in points]
         return (t >= self.t_cut_s - self._half).astype(np.int64)
 
+    def members_at(self, sup: float, load: float) -> tuple[dict[int, Conditions], list[float]]:
+        """The plausible rigs (by index) that complete a conventional stroke at supply set-point
+        ``sup`` [Pa gauge] and payload ``load`` [kg], as conditions, and their stroke times [s]."""
+        members, t_end = {}, []
+        with warnings.catch_warnings():  # a plausible rig that needs a smaller substep is ours
+            warnings.simplefilter("ignore", RigWarning)
+            for j, ch in enumerate(self.changes):
+                c = Conditions(supply_pressure_gauge_pa=sup, load_mass_kg=load, rig_changes=ch)
+                try:
+                    t_end.append(conventional_figures(c.rig(self.model.rig), c.dip,
+                                                      period_s=self.period)[0])
+                except (ValueError, SimulationError):
+                    continue  # a member that cannot complete a stroke here
+                members[j] = c
+        return members, t_end
+
     def plan(self, points: Sequence[tuple[float, float]]) -> dict[tuple[float, float], float]:
         """Plan the cut-off time [s] (``inf``: never) of each operating point ``(supply set-point
         [Pa gauge], payload [kg])``, all searched together; cached."""
@@ -162,19 +182,11 @@ class RigModelPolicy(TimedCutPolicy):
             warnings.simplefilter("ignore", RigWarning)
             conds, ranges = {}, {}
             for k, (sup, load) in enumerate(points):
-                t_end = []
-                for j, ch in enumerate(self.changes):
-                    c = Conditions(supply_pressure_gauge_pa=sup, load_mass_kg=load,
-                                   rig_changes=ch)
-                    try:
-                        t_end.append(conventional_figures(c.rig(self.model.rig), c.dip,
-                                                          period_s=self.period)[0])
-                    except (ValueError, SimulationError):
-                        continue  # a member that cannot complete a stroke here
-                    conds[k, j] = c
-                if not t_end:  # no plausible rig completes a stroke: never cut
+                members, t_end = self.members_at(sup, load)
+                if not members:  # no plausible rig completes a stroke: never cut
                     self._plans[points[k]] = math.inf
                     continue
+                conds.update({(k, j): c for j, c in members.items()})
                 ranges[k] = (0, int(math.ceil((max(t_end) + self.window) / self.period)) + 1)
 
             def score(cands: dict) -> dict:

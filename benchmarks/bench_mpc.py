@@ -6,10 +6,12 @@ with the evaluation's sensor noise) from ``--seed``, runs every policy on the sa
 writes ``mpc_family.json`` (per policy: oracle fraction, saving, time, stall and stick-slip rates,
 wall time; every episode's figures) and ``mpc_family.png`` (oracle fraction per policy; saving against time increase).
 Saved models join as ``NAME=PATH`` (e.g. ``esac_family=runs/esac-family``); ``mpc-rig`` is
-commissioned on each draw's rig from its two strokes first (about 30 s a rig on 2 cores).
+commissioned on each draw's rig from its two strokes first (about 60 s a rig on 2 cores);
+``--plan`` sets how it plans (e.g. ``1 worst 3``: the plan before issue 12's fresh-draw study).
 
     python benchmarks/bench_mpc.py                      # 60 episodes, ~10 min on 2 cores
     python benchmarks/bench_mpc.py --episodes 8 --out bench/mpc
+    python benchmarks/bench_mpc.py --policies mpc-rig --seed 6000000 --episodes 40 --plan 1 worst 3
 """
 from __future__ import annotations
 
@@ -38,9 +40,20 @@ def main(argv=None) -> dict:
                     help="mpc-rig: least-squares starts per line model of each rig's fit")
     ap.add_argument("--commission-nfev", type=int, default=None,
                     help="mpc-rig: evaluations per least-squares start")
+    ap.add_argument("--plan", nargs=3, metavar=("SPREAD", "RULE", "MARGIN"), default=None,
+                    help="mpc-rig: the plan's spread of plausible rigs, rule (worst, mean) and "
+                         "margin in control periods (default: RigModelPolicy's, 2 mean 1; the "
+                         "earlier plan was 1 worst 3)")
     args = ap.parse_args(argv)
     if args.episodes < 1:
         ap.error("--episodes must be >= 1")
+    plan = {}
+    if args.plan:
+        try:
+            plan = {"spread": float(args.plan[0]), "rule": args.plan[1],
+                    "margin_periods": int(args.plan[2])}
+        except ValueError:
+            ap.error(f"--plan {' '.join(args.plan)}: give a number, a rule and an integer")
     import numpy as np
 
     from agents.evaluation.commissioning import run_commissioned
@@ -61,6 +74,8 @@ def main(argv=None) -> dict:
         name, pol = make_named_policy(spec, probe)
         t0 = time.perf_counter()
         if getattr(pol, "commissioned_per_rig", False):  # mpc-rig: two strokes of each rig first
+            if plan:
+                pol = type(pol).for_env(probe, **plan)
             pol.commission_options.update(commission)
             out = run_commissioned(pol, [(f"draw-{i}/", c) for i, c in enumerate(conds)], cfg,
                                    args.seed, probe.rig, run_policy, progress=True)

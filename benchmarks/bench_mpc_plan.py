@@ -136,23 +136,14 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     range); ``truth_j`` (the truth's returns, by cut) is filled in for every cut of the grid.
     ``{}`` when no plausible rig completes a stroke (``mpc-rig`` then never cuts)."""
     from agents.oracle import OraclePolicy
-    from pneugym.envs import Conditions, conventional_figures
-    from pneugym.plant import SimulationError
+    from pneugym.envs import conventional_figures
 
     point = (round(float(c.supply_pressure_gauge_pa), 0), round(float(c.load_mass_kg), 4))
     quiet = dataclasses.replace(c, position_noise_m=0.0, pressure_noise_pa=0.0)
-    members, ends = {}, [conventional_figures(quiet.rig(base), quiet.dip,
-                                              period_s=policy.period)[0]]
-    for j, ch in enumerate(policy.changes):
-        mc = Conditions(supply_pressure_gauge_pa=point[0], load_mass_kg=point[1], rig_changes=ch)
-        try:
-            ends.append(conventional_figures(mc.rig(policy.model.rig), mc.dip,
-                                             period_s=policy.period)[0])
-            members[j] = mc
-        except (ValueError, SimulationError):
-            continue  # a plausible rig that cannot complete a stroke here (as in mpc-rig's plan)
+    members, ends = policy.members_at(*point)
     if not members:
         return {}
+    ends.append(conventional_figures(quiet.rig(base), quiet.dip, period_s=policy.period)[0])
     k1 = int(math.ceil((max(ends) + policy.window) / policy.period)) + 1
     grid = [round(k * policy.period, 6) for k in range(k1 + 1)] + [math.inf]
     missing = [t for t in grid if t not in truth_j]
