@@ -54,6 +54,10 @@ def main(argv=None) -> dict:
                     "margin_periods": int(args.plan[2])}
         except ValueError:
             ap.error(f"--plan {' '.join(args.plan)}: give a number, a rule and an integer")
+        from agents.mpc_rig import RULES
+
+        if plan["rule"] not in RULES:
+            ap.error(f"--plan: the rule is {plan['rule']!r}; choose from {tuple(RULES)}")
     import numpy as np
 
     from agents.evaluation.commissioning import run_commissioned
