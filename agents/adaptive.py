@@ -16,7 +16,9 @@ The conventional stroke time and energy that the objective is counted against ar
 - :class:`AdaptiveESAC`: ESAC fine-tuned from its own recorded strokes (each stroke labels the
   observations at its cut and before it with its measured outcome, as rollouts do), a share of
   strokes exploring another time demand; a candidate is deployed only if it predicts the most
-  recent strokes, which it was not trained on, better than the running model.
+  recent strokes, which it was not trained on, better than the running model. Its time demand
+  follows the measured outcome (:class:`DemandTuner`): it moves to an explored demand only when
+  the recent strokes there scored clearly better (stick-slip included).
 
 The operating loop calls :meth:`Frozen.plan` before each block, :meth:`Frozen.update` with the
 block's measured outcome, :meth:`Frozen.adapt` at the start of each block (with the record) and
@@ -169,6 +171,77 @@ class AdaptiveGasLaw(Frozen):
         self.version = self._version()
 
 
+class DemandTuner:
+    """The time demand that recent strokes scored best with, measured: each cut stroke adds its
+    demand and its :func:`measured_objective`; :meth:`choose` estimates the mean objective at
+    each demand of ``grid`` from the last ``window`` strokes (triangular kernel of half-width
+    ``bandwidth`` on the demand) and moves from the current demand to the best only if the
+    difference exceeds ``z`` standard errors, with at least ``min_n`` effective strokes on each
+    side. The exploring strokes supply the other demands; a drift that makes another demand
+    better (a load at which the tuned cut meets stick-slip) shows there first."""
+
+    def __init__(self, grid: np.ndarray, window: int = 250, bandwidth: float = 0.05,
+                 z: float = 2.0, min_n: float = 8.0):
+        grid = np.asarray(grid, dtype=float)
+        if grid.ndim != 1 or grid.size < 2 or not np.all(np.isfinite(grid)):
+            raise ValueError(f"grid = {grid!r}: give two or more finite demands")
+        if not (window >= 10 and bandwidth > 0 and z >= 0 and min_n >= 2):
+            raise ValueError("window >= 10, bandwidth > 0, z >= 0 and min_n >= 2")
+        self.grid, self.window, self.bandwidth = grid, int(window), float(bandwidth)
+        self.z, self.min_n = float(z), float(min_n)
+        self.stroke = np.zeros(0, dtype=np.int64)
+        self.demand = np.zeros(0)
+        self.value = np.zeros(0)
+
+    def add(self, strokes: np.ndarray, demands: np.ndarray, values: np.ndarray) -> None:
+        """Record strokes' demands and measured objectives (non-finite ones are skipped)."""
+        ok = np.isfinite(values) & np.isfinite(demands)
+        self.stroke = np.concatenate([self.stroke, np.asarray(strokes, np.int64)[ok]])
+        self.demand = np.concatenate([self.demand, np.asarray(demands, float)[ok]])
+        self.value = np.concatenate([self.value, np.asarray(values, float)[ok]])
+        if self.stroke.size:
+            keep = self.stroke > self.stroke.max() - self.window
+            self.stroke, self.demand = self.stroke[keep], self.demand[keep]
+            self.value = self.value[keep]
+
+    def estimate(self, d: float) -> tuple[float, float, float]:
+        """Mean measured objective near demand ``d``, its standard error and the effective
+        number of strokes behind it."""
+        w = np.maximum(0.0, 1.0 - np.abs(self.demand - d) / self.bandwidth)
+        sw = w.sum()
+        if sw <= 0.0:
+            return math.nan, math.inf, 0.0
+        n = sw * sw / float((w * w).sum())
+        m = float((w * self.value).sum() / sw)
+        var = float((w * (self.value - m) ** 2).sum() / sw) * n / max(n - 1.0, 1.0)
+        return m, math.sqrt(var / n), n
+
+    def choose(self, current: float) -> float:
+        """The demand for the next strokes: ``current`` unless a demand of the grid scored
+        better by more than ``z`` standard errors of the difference."""
+        m0, s0, n0 = self.estimate(current)
+        if n0 < self.min_n:
+            return current
+        best, gain = current, 0.0
+        for d in self.grid:
+            m, s, n = self.estimate(float(d))
+            if n < self.min_n or abs(d - current) < 1e-9:
+                continue
+            g = m - m0 - self.z * math.hypot(s, s0)
+            if g > gain + 1e-12:
+                best, gain = float(d), g
+        return best
+
+    def state(self) -> dict[str, list]:
+        return {"stroke": self.stroke.tolist(), "demand": self.demand.tolist(),
+                "value": self.value.tolist()}
+
+    def restore(self, s: Mapping[str, list]) -> None:
+        self.stroke = np.asarray(s["stroke"], dtype=np.int64)
+        self.demand = np.asarray(s["demand"], dtype=float)
+        self.value = np.asarray(s["value"], dtype=float)
+
+
 class AdaptiveESAC(Frozen):
     """ESAC fine-tuned in operation from its recorded strokes.
 
@@ -179,7 +252,9 @@ class AdaptiveESAC(Frozen):
     the newest ``holdout`` share: the candidate is deployed only if its loss there is lower by
     ``min_gain`` (relative). A share ``explore`` of the strokes runs with a time demand drawn
     from ``explore_range`` instead of the tuned one, so that the record shows the outcome of
-    other cut times too."""
+    other cut times too. With ``tune_demand`` the regular strokes' time demand follows the
+    measured outcome of the last ``tune_window`` strokes (:class:`DemandTuner` on the explored
+    range, in steps of a sixth of it; ``tune_z`` standard errors to move)."""
 
     needs_inputs = True
     reference_every = 100
@@ -187,7 +262,8 @@ class AdaptiveESAC(Frozen):
     def __init__(self, spec: str, env: Any, seed: int = 0, adapt_every: int = 250,
                  window: int = 1000, holdout: float = 0.25, epochs: int = 30, lr: float = 5e-4,
                  min_gain: float = 0.02, explore: float = 0.2,
-                 explore_range: tuple[float, float] = (0.0, 0.3)):
+                 explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
+                 tune_window: int = 250, tune_z: float = 2.0):
         super().__init__(spec, env, seed)
         from .esac.policy import ESACPolicy
 
@@ -207,13 +283,27 @@ class AdaptiveESAC(Frozen):
         self.rule = self.policy.rule()
         self.generation = 0
         self.last_adapt = 0
-        self.version = f"{self.name}-v0"
+        self.model_version = f"{self.name}-v0"
+        lo, hi = self.explore_range
+        self.tune_demand = bool(tune_demand)
+        self.tuner = DemandTuner(np.linspace(lo, hi, 7), window=tune_window,
+                                 bandwidth=(hi - lo) / 6.0, z=tune_z)
+        self.demand = float(self.rule["max_time_increase"])
+        self.conv = (math.nan, math.nan)  # the latest reference stroke's time [s], energy [J]
+        self._planned = np.zeros(0)
+        self.version = self._version()
+
+    def _version(self) -> str:
+        return (f"{self.model_version} demand={self.demand:.3f}" if self.tune_demand
+                else self.model_version)
 
     def config(self) -> dict[str, Any]:
         return {**super().config(), "adapt_every": self.adapt_every, "window": self.window,
                 "holdout": self.holdout, "epochs": self.epochs, "lr": self.lr,
                 "min_gain": self.min_gain, "explore": self.explore,
-                "explore_range": list(self.explore_range), "reference_every": self.reference_every}
+                "explore_range": list(self.explore_range), "reference_every": self.reference_every,
+                "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
+                "tune_z": self.tuner.z}
 
     def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
         from .esac.policy import ESACPolicy
@@ -222,11 +312,27 @@ class AdaptiveESAC(Frozen):
         u = np.array([np.random.default_rng([self.seed, int(k), 7]).random(2) for k in strokes])
         explore = (u[:, 0] < self.explore) & ~ref
         lo, hi = self.explore_range
-        demand = np.where(explore, lo + (hi - lo) * u[:, 1], float(self.rule["max_time_increase"]))
+        demand = np.where(explore, lo + (hi - lo) * u[:, 1], self.demand)
+        self._planned = demand
         rule = {k: v for k, v in self.rule.items() if k != "max_time_increase"}
         pol = ESACPolicy(self.layout, self.policy.predictor, max_time_increase=demand,
                          source=self.policy.source, **rule)
         return pol, {"reference": ref, "explore": explore}
+
+    def update(self, rec: Mapping[str, np.ndarray]) -> None:
+        """The time demand from the block's measured outcome (with ``tune_demand``)."""
+        ref = np.asarray(rec["reference"], dtype=bool)
+        if ref.any():
+            i = np.flatnonzero(ref)[-1]
+            self.conv = (float(rec["stroke_time_s"][i]), float(rec["energy_wasted_j"][i]))
+        if not self.tune_demand or not math.isfinite(self.conv[0]) or ref.all():
+            return
+        j = measured_objective(rec, self.conv[0], self.conv[1], float(self.rule["w_time"]),
+                               float(self.rule["w_stick"]), float(self.rule["w_stall"]))
+        cut = ~ref
+        self.tuner.add(np.asarray(rec["stroke"])[cut], self._planned[cut], j[cut])
+        self.demand = self.tuner.choose(self.demand)
+        self.version = self._version()
 
     # -- learning from the record --------------------------------------------------------------
     def _samples(self, rec: Mapping[str, np.ndarray], first: int = 0
@@ -290,7 +396,8 @@ class AdaptiveESAC(Frozen):
         version = f"{self.name}-v{self.generation}"
         if deploy:
             self.policy.predictor.net = cand
-            self.version = version
+            self.model_version = version
+            self.version = self._version()
         return [{"version": version, "stroke": stroke, "kind": "esac", "deployed": bool(deploy),
                  "score_new": s_new, "score_running": s_old,
                  "detail": {"train_samples": int(tr.sum()), "holdout_samples": int(te.sum()),
@@ -298,19 +405,24 @@ class AdaptiveESAC(Frozen):
                  "blob": _net_bytes(cand, self.policy)}]
 
     def state(self) -> bytes:
-        return json.dumps({"version": self.version, "generation": self.generation,
-                           "last_adapt": self.last_adapt}).encode()
+        return json.dumps({"version": self.version, "model_version": self.model_version,
+                           "generation": self.generation, "last_adapt": self.last_adapt,
+                           "demand": self.demand, "conv": list(self.conv),
+                           "tuner": self.tuner.state()}).encode()
 
     def restore(self, state: bytes, record: Any, run_id: str) -> None:
         s = json.loads(state)
         self.generation, self.last_adapt = int(s["generation"]), int(s["last_adapt"])
-        self.version = s["version"]
-        if self.version != f"{self.name}-v0":
+        self.model_version, self.demand = s["model_version"], float(s["demand"])
+        self.conv = tuple(float(v) for v in s["conv"])
+        self.tuner.restore(s["tuner"])
+        self.version = self._version()
+        if self.model_version != f"{self.name}-v0":
             row = record.con.execute("SELECT blob FROM models WHERE run_id = ? AND version = ?",
-                                     [run_id, self.version]).fetchone()
+                                     [run_id, self.model_version]).fetchone()
             if row is None:
-                raise ValueError(f"run {run_id!r}: its checkpoint names model {self.version}, "
-                                 f"which the record does not hold")
+                raise ValueError(f"run {run_id!r}: its checkpoint names model "
+                                 f"{self.model_version}, which the record does not hold")
             self.policy.predictor.net = _net_from_bytes(row[0])
 
 

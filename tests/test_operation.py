@@ -10,7 +10,8 @@ import pytest
 
 pytest.importorskip("duckdb")
 
-from agents.adaptive import AdaptiveGasLaw, make_controller, measured_objective  # noqa: E402
+from agents.adaptive import (AdaptiveGasLaw, DemandTuner, make_controller,  # noqa: E402
+                             measured_objective)
 from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: E402
 from pneugym.operation import SCENARIOS, Scenario, scenario  # noqa: E402
 from pneugym.operation.record import Record, export_runs  # noqa: E402
@@ -166,6 +167,40 @@ def test_adaptive_gaslaw_backs_off_after_a_stall_and_follows_the_better_side():
     assert (c2.log_g, c2.conv, c2.version) == (c.log_g, c.conv, c.version)
 
 
+def test_demand_tuner_moves_only_on_a_clear_difference_and_forgets_old_strokes():
+    rng = np.random.default_rng(0)
+    grid = np.linspace(0.0, 0.3, 7)
+    t = DemandTuner(grid, window=250, bandwidth=0.05, z=2.0)
+    assert t.choose(0.1) == 0.1  # no strokes yet
+    # regular strokes at 0.1 stick half the time (-0.5 each); explored ones above 0.2 never
+    k = np.arange(250)
+    explore = k % 5 == 0
+    d = np.where(explore, rng.uniform(0.0, 0.3, k.size), 0.1)
+    stick = (d < 0.17) & (rng.random(k.size) < 0.5)
+    j = -0.3 - 0.2 * d - 0.5 * stick + rng.normal(0.0, 0.01, k.size)
+    t.add(k, d, j)
+    best = t.choose(0.1)
+    assert 0.2 <= best + 1e-9 and best in grid  # a demand whose kernel sees no stick-slip
+    m, se, n = t.estimate(0.1)
+    assert m == pytest.approx(-0.32 - 0.25, abs=0.08) and n > 150 and 0 < se < 0.05
+    # the same spread of outcomes with no difference between demands: it stays
+    flat = DemandTuner(grid)
+    flat.add(k, d, -0.4 + rng.normal(0.0, 0.05, k.size))
+    assert flat.choose(0.1) == 0.1
+    # strokes older than the window are forgotten; non-finite outcomes are skipped
+    t.add(np.arange(250, 500), np.full(250, 0.1), np.full(250, -0.3))
+    assert t.stroke.min() == 250 and t.choose(0.1) == 0.1
+    t.add(np.array([500]), np.array([0.1]), np.array([np.nan]))
+    assert t.stroke.max() == 499
+    u = DemandTuner(grid)
+    u.restore(json.loads(json.dumps(t.state())))
+    assert u.estimate(0.1) == t.estimate(0.1)
+    with pytest.raises(ValueError, match="grid"):
+        DemandTuner([0.1])
+    with pytest.raises(ValueError, match="bandwidth"):
+        DemandTuner(grid, bandwidth=0.0)
+
+
 def test_exports_parquet_and_measured_runs(gaslaw_life, tmp_path):
     import duckdb
 
@@ -241,7 +276,8 @@ def test_cli_runs_reports_and_exports(tmp_path, capsys):
 def test_adaptive_esac_fine_tunes_from_its_record_and_resumes(tmp_path):
     """A small ESAC model, fine-tuned every 40 strokes from the record: each candidate is
     recorded with the scores that decided; the deployed one is the running model from then on,
-    and a resumed run rebuilds it from the record."""
+    and a resumed run rebuilds it from the record. Its time demand moves to where the measured
+    outcome is better."""
     from agents import esac
 
     data = esac.generate_rollouts(384, seed=5, history=2, preset="thesis-2.5bar", batch=384,
@@ -277,9 +313,10 @@ def test_adaptive_esac_fine_tunes_from_its_record_and_resumes(tmp_path):
         assert (m["deployed"] == (m["score_new"] < 0.98 * m["score_running"])).all()
         assert s["explore"].any() and s["reference"][0] and s["reference"][100]
         for k, v, dep in zip(m["stroke"], m["version"], m["deployed"]):
-            if dep:
-                assert set(s["controller_version"][s["stroke"] >= k]) <= {v} | set(
-                    m["version"][m["stroke"] > k])
+            if dep:  # the running model, then its time demand
+                assert {c.split()[0] for c in s["controller_version"][s["stroke"] >= k]} <= (
+                    {v} | set(m["version"][m["stroke"] > k]))
+        assert all(c.split()[1].startswith("demand=") for c in s["controller_version"])
         # resume a copy cut after stroke 99 (its checkpoint holds the deployed version)
         part = tmp_path / "p.duckdb"
         operate(sc, f"esac-adaptive={model}", strokes=100, db=part, block=20, progress=False)
@@ -288,6 +325,22 @@ def test_adaptive_esac_fine_tunes_from_its_record_and_resumes(tmp_path):
             s2 = rec.strokes(rid)
         np.testing.assert_array_equal(s2["cutoff_time_s"], s["cutoff_time_s"])
         assert math.isfinite(float(np.nanmean(s["objective"])))
+        # the time demand follows the measured outcome: strokes that ran a demand below 1.15
+        # stick, the others do not; the reference strokes give the conventional figures
+        c = make_controller(f"esac-adaptive={model}", CutOffVectorEnv(num_envs=1, **ENV_CONFIG))
+        assert c.demand == 1.0 and c.version.endswith("demand=1.000")
+        for k0 in range(0, 250, 25):
+            ks = np.arange(k0, k0 + 25)
+            _, flags = c.plan(ks)
+            ref = flags["reference"]
+            c.update({"stroke": ks, "reference": ref, "completed": np.ones(25, bool),
+                      "stick_slip_events": ((c._planned < 1.15) & ~ref).astype(np.int64),
+                      "stroke_time_s": np.where(ref, 1.0, 1.05),
+                      "energy_wasted_j": np.where(ref, 400.0, 100.0)})
+        assert c.demand >= 1.2 and c.version.endswith(f"demand={c.demand:.3f}")
+        c2 = make_controller(f"esac-adaptive={model}", CutOffVectorEnv(num_envs=1, **ENV_CONFIG))
+        c2.restore(c.state(), None, "x")
+        assert (c2.demand, c2.conv, c2.version) == (c.demand, c.conv, c.version)
     finally:
         A.AdaptiveESAC.__init__ = orig
 
