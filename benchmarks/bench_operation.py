@@ -5,7 +5,9 @@
     python benchmarks/bench_operation.py --strokes 1000 --scenarios wear,leak-onset
 
 Scenarios are independent: two processes on disjoint ``--scenarios`` with their own ``--out`` give
-the same figures as one (the documented figures were run so, on 2 cores).
+the same figures as one (the documented figures were run so, on 2 cores). Start each such
+process with ``NUMBA_NUM_THREADS=1``: with numba's default threads, processes sharing the cores
+ran 4.7 times slower.
 
 Needs a trained ESAC run (``pneugym train --algo esac --out runs/esac``, or the main job's).
 About 40 minutes on one core for the controllers, and 40 more for the condition monitoring
