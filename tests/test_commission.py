@@ -182,9 +182,13 @@ def test_the_fit_chooses_the_supply_line_model_the_strokes_show():
 
 
 def test_the_fit_chooses_the_orifice_law_the_strokes_show():
-    """At 1.5 bar the flows are mostly subsonic, where the thesis's law and ISO 6358 part."""
+    """At 1.5 bar the flows are mostly subsonic, where the thesis's law and ISO 6358 part: a
+    valve with the critical ratio b = 0.3 of many real ones. (With b = 0.528 the two laws
+    differ too little for two strokes: longer fits reach the noise with either, and which law
+    the shortest fit picks followed the machine's BLAS kernels.)"""
     known = KNOWN.with_(supply_pressure_gauge_pa=1.5e5)
-    runs = commissioning_protocol(known.with_(valve={"flow_model": "iso6358"}), known, seed=4)
+    runs = commissioning_protocol(known.with_(valve={"flow_model": "iso6358", "iso_b": 0.3}),
+                                  known, seed=4)
     fit = {"starts": 1, "max_nfev": 3, "extras": False, "line_models": None}
     m = commission(runs, orifice_models=ORIFICE_MODELS, **fit)
     assert m.stated.valve.flow_model == "iso6358" and m.rig.valve.flow_model == "iso6358"
