@@ -58,6 +58,16 @@ def measured_objective(rec: Mapping[str, np.ndarray], conv_time_s: np.ndarray,
             - w_stall * (~done))
 
 
+def latest_reference(rec: Mapping[str, np.ndarray], conv: tuple[float, float]
+                     ) -> tuple[float, float]:
+    """The stroke time [s] and wasted energy [J] of the block's last reference stroke (uncut),
+    else ``conv``: what an adapting controller's measured objective is counted against."""
+    ref = np.flatnonzero(np.asarray(rec["reference"], dtype=bool))
+    if not ref.size:
+        return conv
+    return float(rec["stroke_time_s"][ref[-1]]), float(rec["energy_wasted_j"][ref[-1]])
+
+
 class Frozen:
     """A policy that never changes: ``spec`` a baseline's name (``gaslaw``, ``endstroke``, ...)
     or ``NAME=PATH`` of a trained model, built for ``env`` (the operating vector environment)."""
@@ -145,9 +155,7 @@ class AdaptiveGasLaw(Frozen):
 
     def update(self, rec: Mapping[str, np.ndarray]) -> None:
         ref = np.asarray(rec["reference"], dtype=bool)
-        if ref.any():
-            i = np.flatnonzero(ref)[-1]
-            self.conv = (float(rec["stroke_time_s"][i]), float(rec["energy_wasted_j"][i]))
+        self.conv = latest_reference(rec, self.conv)
         cut = ~ref
         if not cut.any() or not math.isfinite(self.conv[0]):
             return
@@ -322,9 +330,7 @@ class AdaptiveESAC(Frozen):
     def update(self, rec: Mapping[str, np.ndarray]) -> None:
         """The time demand from the block's measured outcome (with ``tune_demand``)."""
         ref = np.asarray(rec["reference"], dtype=bool)
-        if ref.any():
-            i = np.flatnonzero(ref)[-1]
-            self.conv = (float(rec["stroke_time_s"][i]), float(rec["energy_wasted_j"][i]))
+        self.conv = latest_reference(rec, self.conv)
         if not self.tune_demand or not math.isfinite(self.conv[0]) or ref.all():
             return
         j = measured_objective(rec, self.conv[0], self.conv[1], float(self.rule["w_time"]),
