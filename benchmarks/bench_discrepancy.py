@@ -231,11 +231,14 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-offset", type=int, default=0,
                     help="added to every case's seed: 0 for the cases the workflow was developed on, "
                          "50000 for the reported mismatched-form bench (held out from development)")
+    ap.add_argument("--discrepancy-term", choices=("none", "ar"), default="none",
+                    help="the workflow's model of the structural error (default none)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:
         a.cases, a.controls = 1, 2
-    kw = dict(seed=0, n_jobs=a.jobs)
+    kw = dict(seed=0, n_jobs=a.jobs,
+              discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term)
     only = set(a.only.split(","))
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
                             "form": a.form, "seed_offset": a.seed_offset,
@@ -254,6 +257,8 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     name = "discrepancy.json" if a.form == "matched" else "discrepancy_mismatched.json"
+    if kw["discrepancy_term"]:
+        name = name.replace(".json", f"_{kw['discrepancy_term']}.json")
     (out / name).write_text(json.dumps(res, indent=2, default=float))
     print(f"\nwritten {out / name} ({res['total_wall_s']:.0f} s)")
     return 0

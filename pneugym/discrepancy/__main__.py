@@ -43,8 +43,15 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--probe", type=int, default=24, help="start points screened per fit (default 24)")
     ap.add_argument("--max-nfev", type=int, default=40, help="iterations per start (default 40)")
     ap.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
-    ap.add_argument("--min-improvement", type=float, default=0.1,
-                    help="fraction of the calibrated model's misfit an effect must remove (default 0.1)")
+    ap.add_argument("--min-improvement", type=float, default=None,
+                    help="fraction of the calibrated model's misfit an effect must remove (default "
+                         "0.1; with --discrepancy-term ar, of the misfit above the noise, 0.3)")
+    ap.add_argument("--discrepancy-term", choices=("none", "ar"), default="none",
+                    help="model of the structural error the tests read the residuals through: none "
+                         "(default: the residuals' autocorrelation deflates their sample size) or "
+                         "ar (an autoregressive model fitted on the calibrated nominal model "
+                         "whitens every candidate's residuals; for rigs whose form the model "
+                         "misses, see docs/discrepancy.md)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     ap.add_argument("--max-samples", type=int, default=MAX_SAMPLES,
@@ -86,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         d = Discrepancy(names, holdout=holdout, n_probe=a.probe, max_nfev=a.max_nfev, alpha=a.alpha,
                         min_improvement=a.min_improvement, seed=a.seed, n_jobs=a.jobs,
                         progress=not a.quiet, max_samples=a.max_samples, calibrate=a.calibrate,
+                        discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term,
                         **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -129,7 +137,8 @@ def _hold(a: argparse.Namespace, out) -> int:
     from .hold import HoldDiscrepancy, read_hold, write_hold_report
     try:
         recs = [read_hold(p) for p in a.paths]
-        h = HoldDiscrepancy(alpha=a.alpha, min_improvement=a.min_improvement, seed=a.seed,
+        h = HoldDiscrepancy(alpha=a.alpha, seed=a.seed,
+                            min_improvement=0.1 if a.min_improvement is None else a.min_improvement,
                             **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

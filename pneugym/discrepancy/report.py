@@ -70,6 +70,7 @@ class FittedDiscrepancy(Protocol):
     warnings_: list[str]
     wall_time_s_: float
     min_improvement: float
+    discrepancy_term: str | None
 
     @property
     def held_out_tested(self) -> bool: ...
@@ -355,15 +356,16 @@ def write_plots(d: FittedDiscrepancy, out: Path) -> list[Path]:
     cs = d.candidates_
     fig, ax = plt.subplots(figsize=(7, 0.6 * len(cs) + 1.5))
     y = np.arange(len(cs))[::-1]
-    ax.barh(y + 0.18, [max(c.improvement_fit, -0.2) for c in cs], 0.36, color=["tab:green" if c.passed else "0.6" for c in cs],
+    ax.barh(y + 0.18, [max(c.material_fit, -0.2) for c in cs], 0.36, color=["tab:green" if c.passed else "0.6" for c in cs],
             label="fitted runs")
     if d.holdout_runs_:
-        ax.barh(y - 0.18, [max(c.improvement_holdout or 0.0, -0.2) for c in cs], 0.36,
+        ax.barh(y - 0.18, [max(c.material_holdout or 0.0, -0.2) for c in cs], 0.36,
                 color=["tab:olive" if c.passed else "0.8" for c in cs], label="held-out run")
     ax.set_yticks(y, [f"{c.name} ({'pass' if c.passed else 'fail'})" for c in cs])
     ax.axvline(0.0, color="k", lw=0.6)
     ax.axvline(d.min_improvement, color="tab:red", lw=0.6, ls="--", label="required (fitted runs)")
-    ax.set_xlabel("fraction of the calibrated model's SSR removed")
+    ax.set_xlabel("fraction of the calibrated model's SSR removed"
+                  + ("" if d.discrepancy_term is None else " above the noise"))
     ax.set_xlim(-0.25, 1.02)  # bars below -20 % are clipped there
     ax.set_title(f"candidates, ranked (named: {d.named_effect_})", fontsize=10)
     if not cs:

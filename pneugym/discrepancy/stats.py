@@ -100,3 +100,38 @@ def standard_errors(jac: np.ndarray, ssr: float, n: int, kappa: float) -> np.nda
     var = (V[:, good] ** 2) @ (1.0 / w[good])
     var[(V[:, ~good] ** 2).sum(axis=1) > 1e-6] = np.inf
     return np.sqrt(kappa * s2 * var)
+
+
+def ar_whitener(r: np.ndarray, max_order: int = 5) -> np.ndarray:
+    """Whitening filter of an autoregressive model of the residual series ``r``.
+
+    Fits ``r_t = a_1 r_{t-1} + ... + a_p r_{t-p} + e_t`` by least squares for every order
+    ``p <= max_order`` (on the same samples) and keeps the order with the lowest BIC; returns
+    ``[1, -a_1, ..., -a_p]``, the FIR filter whose output is ``e`` (:func:`whiten`). Series
+    shorter than ``8 * (max_order + 1)`` samples get the orders they can carry."""
+    r = np.asarray(r, float)
+    pmax = int(min(max_order, max(r.size // 8 - 1, 0)))
+    if pmax == 0:
+        return np.ones(1)
+    y = r[pmax:]
+    n = y.size
+    lags = np.column_stack([r[pmax - k:r.size - k] for k in range(1, pmax + 1)])
+    best, coef = n * np.log(max(float(y @ y) / n, 1e-300)), np.zeros(0)
+    for p in range(1, pmax + 1):
+        a, *_ = np.linalg.lstsq(lags[:, :p], y, rcond=None)
+        e = y - lags[:, :p] @ a
+        bic = n * np.log(max(float(e @ e) / n, 1e-300)) + p * np.log(n)
+        if bic < best:
+            best, coef = bic, a
+    return np.concatenate([[1.0], -coef])
+
+
+def whiten(x: np.ndarray, filt: np.ndarray) -> np.ndarray:
+    """``x`` (a series, or the rows of a matrix) through the FIR whitening filter ``filt`` of
+    :func:`ar_whitener`, its first ``len(filt) - 1`` samples (the filter's start-up) dropped."""
+    x = np.asarray(x, float)
+    p = len(filt) - 1
+    out = filt[0] * x[p:]
+    for k in range(1, p + 1):
+        out = out + filt[k] * x[p - k:x.shape[0] - k]
+    return out

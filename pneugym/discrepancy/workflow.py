@@ -61,9 +61,15 @@ from .residuals import (
     run_label,
     run_phases,
 )
-from .stats import f_test, inflation, lr_test, separation, standard_errors
+from .stats import ar_whitener, f_test, inflation, lr_test, separation, standard_errors, whiten
 
 MODELS = ("nominal", "calibrated", "updated")
+#: highest order of the autoregressive discrepancy term (BIC picks the order per segment)
+AR_MAX_ORDER = 5
+#: the material checks' default share, by discrepancy term: of the whole misfit without one,
+#: of the misfit above the noise with the autoregressive one (chosen on the development seeds
+#: of the mismatched-form bench, docs/discrepancy.md)
+MIN_IMPROVEMENT: dict[str | None, float] = {None: 0.1, "ar": 0.3}
 #: said wherever a result has had no held-out check
 NO_HOLDOUT_WARNING = (
     "not tested on a held-out run: with a single run (or holdout none) every run is fitted, so "
@@ -114,6 +120,10 @@ class CandidateResult:
     reasons: list[str]
     nfev: int
     start_ssr: list[float]
+    ssr_test: float  # the SSRs the tests read: ssr_fit / ssr_holdout, or whitened by the
+    ssr_test_holdout: float | None  # discrepancy term
+    material_fit: float  # the shares the material checks read: improvement_*, or with the
+    material_holdout: float | None  # discrepancy term, of the misfit above the noise
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -137,7 +147,8 @@ class Discrepancy:
     alpha : significance level; divided by the number of candidates (Bonferroni).
     min_improvement : smallest fraction of the calibrated model's fit SSR an effect must remove
         (half of it on the held-out run): statistical significance on thousands of samples
-        is not enough on its own.
+        is not enough on its own. Default (``None``): 0.1; with ``discrepancy_term="ar"``, 0.3
+        of the SSR above the noise's (:data:`MIN_IMPROVEMENT`).
     z_min : a magnitude parameter must be this many standard errors from its null value.
     seed : seeds every random start; the result does not depend on ``n_jobs``.
     n_jobs : processes for the starts (1 = serial; None = all cores).
@@ -148,13 +159,21 @@ class Discrepancy:
         delay, exhaust and port areas and cushion length as factors on the stated values) or
         ``"basic"`` (the discharge coefficient and friction only); see
         :func:`~pneugym.discrepancy.candidates.nominal_params`.
+    discrepancy_term : the structural error's model the tests read the residuals through.
+        ``None`` (default): none; the residuals' autocorrelation deflates their effective
+        sample size (:func:`~pneugym.discrepancy.stats.inflation`). ``"ar"``: an
+        autoregressive model (order up to :data:`AR_MAX_ORDER` by BIC) fitted on each
+        residual series (run and channel) of the calibrated nominal model whitens every
+        candidate's residuals, their Jacobian and the held-out run's (generalised least
+        squares with the discrepancy's covariance fixed, Kennedy-O'Hagan style); the
+        material checks then read the share of the misfit above the noise.
     """
 
     def __init__(self, candidates: Iterable[str | Candidate] | None = None, holdout: str | None = "auto",
                  n_starts: int = 4, n_probe: int = 24, max_nfev: int = 40, alpha: float = 0.01,
-                 min_improvement: float = 0.1, z_min: float = 3.0, seed: int = 0,
+                 min_improvement: float | None = None, z_min: float = 3.0, seed: int = 0,
                  n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES,
-                 calibrate: str = "extended"):
+                 calibrate: str = "extended", discrepancy_term: str | None = None):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -168,6 +187,11 @@ class Discrepancy:
         if calibrate not in ("extended", "basic"):
             raise ValueError(f"Discrepancy calibrate = {calibrate!r} must be 'extended' or 'basic'")
         self.calibrate = calibrate
+        if discrepancy_term not in (None, "ar"):
+            raise ValueError(f"Discrepancy discrepancy_term = {discrepancy_term!r} must be None or 'ar'")
+        self.discrepancy_term = discrepancy_term
+        if min_improvement is None:
+            min_improvement = MIN_IMPROVEMENT[discrepancy_term]
         for name, v, ok in (("n_starts", n_starts, n_starts >= 1), ("n_probe", n_probe, n_probe >= 1),
                             ("max_nfev", max_nfev, max_nfev >= 1),
                             ("alpha", alpha, 0 < alpha < 1),
@@ -195,7 +219,7 @@ class Discrepancy:
                 "n_starts": self.n_starts, "n_probe": self.n_probe, "max_nfev": self.max_nfev,
                 "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
                 "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples,
-                "calibrate": self.calibrate}
+                "calibrate": self.calibrate, "discrepancy_term": self.discrepancy_term}
 
     def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
         """Run the workflow on measured runs (or paths to runs / folders of runs).
@@ -209,6 +233,7 @@ class Discrepancy:
         if not runs:
             raise ValueError("no runs given")
         self.rigs_ = [r.rig(base) for r in runs]
+        self.whiteners_: dict[tuple[str, str], np.ndarray] | None = None
         runs, self.preparation_ = prepare(runs, self.rigs_, self.max_samples)
         self.runs_ = runs
         self.phases_: list[RunPhases] = [run_phases(r, g) for r, g in zip(runs, self.rigs_)]
@@ -248,6 +273,9 @@ class Discrepancy:
             cal_vals = self.calibrated_.values
             self.sims_["calibrated"] = Problem(runs, self.rigs_, self.sigma_, nom).simulate(cal_vals)
             seg0 = Problem(runs, self._fixed, self.sigma_, nom).segments(cal_vals)
+            # the structural error's model, fitted once on the calibrated nominal model
+            self.whiteners_ = ({(n, c): ar_whitener(s, AR_MAX_ORDER) for n, c, s in seg0}
+                               if self.discrepancy_term == "ar" else None)
             # (3) localisation
             self.findings_ = {m: localise(runs, self.sims_[m], self.phases_, self.sigma_)
                               for m in ("nominal", "calibrated")}
@@ -368,11 +396,19 @@ class Discrepancy:
         fit1, hold1 = self._split(segs)
         fit0, hold0 = self._split(seg0)
         ssr1, ssr0 = _ssr(fit1), _ssr(fit0)
-        n = int(sum(s.size for s in fit1))
-        kappa, n_eff = inflation(fit1)
+        # the tests read the residuals through the discrepancy term (whitened), if any
+        tfit1, thold1 = self._split(self._tested(segs))
+        tfit0, thold0 = self._split(self._tested(seg0))
+        tssr1, tssr0 = _ssr(tfit1), _ssr(tfit0)
+        kappa, n_eff = inflation(tfit1)
         p_extra = len(cand.params)
-        F, pval = f_test(ssr0, ssr1, p_extra, len(fr.params), n_eff)
-        se_u = standard_errors(fr.jac, fr.ssr, n, kappa)
+        F, pval = f_test(tssr0, tssr1, p_extra, len(fr.params), n_eff)
+        n = int(sum(s.size for s in fit1))
+        if self.whiteners_ is None:
+            se_u = standard_errors(fr.jac, fr.ssr, n, kappa)
+        else:
+            se_u = standard_errors(self._tested_jac(fr.jac, segs), tssr1,
+                                   int(sum(s.size for s in tfit1)), kappa)
         effect, stderr, z, at_bound = {}, {}, {}, []
         for k, q in enumerate(fr.params):
             if k < len(nom):
@@ -391,10 +427,11 @@ class Discrepancy:
             elif on_lo or on_hi:
                 at_bound.append(q.name)
         improvement_fit = 1.0 - ssr1 / ssr0 if ssr0 > 0 else 0.0  # no misfit: nothing removed
+        material_fit = self._material(ssr0, ssr1, n)
         sig_level = self.alpha / len(self.candidates)
         checks: dict[str, bool | None] = {
             "significant": pval < sig_level,
-            "material": improvement_fit >= self.min_improvement,
+            "material": material_fit >= self.min_improvement,
             "away_from_null": bool(z) and max(z.values()) >= self.z_min,
             "not_on_bound": not at_bound,
         }
@@ -403,24 +440,28 @@ class Discrepancy:
             reasons.append(f"fit improvement not significant (F = {F:.3g}, p = {pval:.2g} >= "
                            f"{sig_level:.2g} with N_eff = {n_eff:.0f})")
         if not checks["material"]:
-            reasons.append(f"removes only {improvement_fit:.1%} of the calibrated model's misfit "
+            reasons.append(f"removes only {material_fit:.1%} of the calibrated model's misfit"
+                           f"{'' if self.whiteners_ is None else ' above the noise'} "
                            f"(< {self.min_improvement:.0%})")
         if not checks["away_from_null"]:
             reasons.append("no effect parameter is clearly away from its null value (z = "
                            + ", ".join(f"{k} {v:.2g}" for k, v in z.items()) + f" < {self.z_min:g})")
         if not checks["not_on_bound"]:
             reasons.append(f"fitted on a bound: {', '.join(at_bound)}")
-        ssr1h = ssr0h = neh = hstat = hp = imp_h = None
+        ssr1h = ssr0h = neh = hstat = hp = imp_h = material_h = None
+        tssr1h = None
         if self.holdout_runs_:
             ssr1h, ssr0h = _ssr(hold1), _ssr(hold0)
-            _, neh = inflation(hold1)
-            hstat, hp = lr_test(ssr0h, ssr1h, neh)
+            tssr1h = _ssr(thold1)
+            _, neh = inflation(thold1)
+            hstat, hp = lr_test(_ssr(thold0), tssr1h, neh)
             imp_h = 1.0 - ssr1h / ssr0h if ssr0h > 0 else 0.0
-            ok = hp < sig_level and imp_h >= 0.5 * self.min_improvement
+            material_h = self._material(ssr0h, ssr1h, int(sum(s.size for s in hold1)))
+            ok = hp < sig_level and material_h >= 0.5 * self.min_improvement
             checks["improves_holdout"] = ok
             if not ok:
-                reasons.append(f"held-out run not improved enough ({imp_h:+.1%} of its misfit, "
-                               f"p = {hp:.2g})")
+                reasons.append(f"held-out run not improved enough ({material_h:+.1%} of its misfit"
+                               f"{'' if self.whiteners_ is None else ' above the noise'}, p = {hp:.2g})")
         else:
             checks["improves_holdout"] = None
         ssr_all1, ssr_all0 = ssr1 + (ssr1h or 0.0), ssr0 + (ssr0h or 0.0)
@@ -432,7 +473,39 @@ class Discrepancy:
             ssr_fit=ssr1, ssr0_fit=ssr0, n_fit=n, kappa=kappa, n_eff=n_eff, F=F, p_value=pval,
             ssr_holdout=ssr1h, ssr0_holdout=ssr0h, n_eff_holdout=neh, holdout_stat=hstat,
             holdout_p=hp, improvement_fit=improvement_fit, improvement_holdout=imp_h, score=score,
-            by_phase=by_phase, checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr)
+            by_phase=by_phase, checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr,
+            ssr_test=tssr1, ssr_test_holdout=tssr1h, material_fit=material_fit,
+            material_holdout=material_h)
+
+    def _material(self, ssr0: float, ssr1: float, n: int) -> float:
+        """The share of the calibrated model's misfit a candidate removes, as the material
+        checks read it: of the whole SSR, or, with the discrepancy term (whose tests find
+        the structural error's least part significant), of the SSR above the noise's ``n``
+        (residuals are in units of the noise)."""
+        if self.whiteners_ is None:
+            return 1.0 - ssr1 / ssr0 if ssr0 > 0 else 0.0
+        excess = ssr0 - n
+        return (ssr0 - ssr1) / excess if excess > 0 else 0.0
+
+    def _tested(self, segs):
+        """Residual segments as the tests read them: through the discrepancy term's whitening
+        filters (fitted on the calibrated nominal model), or as they are."""
+        if self.whiteners_ is None:
+            return segs
+        return [(n, c, whiten(s, self.whiteners_[(n, c)])) for n, c, s in segs]
+
+    def _tested_jac(self, jac: np.ndarray, segs) -> np.ndarray:
+        """The fit residuals' Jacobian (rows: the fitted runs' segments, in order) whitened
+        segment by segment like the residuals."""
+        hold = {r.name for r in self.holdout_runs_}
+        fit = [(n, c, s.size) for n, c, s in segs if n not in hold]
+        if sum(k for *_, k in fit) != jac.shape[0]:
+            raise RuntimeError("Jacobian rows do not match the fitted runs' residuals")
+        out, i = [], 0
+        for n, c, k in fit:
+            out.append(whiten(jac[i:i + k], self.whiteners_[(n, c)]))
+            i += k
+        return np.concatenate(out)
 
     def _by_phase(self, seg0, seg1, total: float) -> dict[str, float]:
         """Share of the calibrated model's SSR (all runs) that a candidate removes in each phase:
@@ -478,8 +551,8 @@ class Discrepancy:
         a = passed[0]
         if len(passed) > 1:
             b = passed[1]
-            ssr_a = a.ssr_fit + (a.ssr_holdout or 0.0)
-            ssr_b = b.ssr_fit + (b.ssr_holdout or 0.0)
+            ssr_a = a.ssr_test + (a.ssr_test_holdout or 0.0)
+            ssr_b = b.ssr_test + (b.ssr_test_holdout or 0.0)
             stat, p = separation(ssr_a, ssr_b, a.n_eff + (a.n_eff_holdout or 0.0))
             self.separation_ = {"best": a.name, "runner_up": b.name, "statistic": stat, "p_value": p}
             if p >= self.alpha:
