@@ -34,6 +34,7 @@ from pneugym.discrepancy import (
 from pneugym.discrepancy.__main__ import main
 from pneugym.discrepancy.candidates import (
     EXPOSING_EXPERIMENTS,
+    Candidate,
     FitParam,
     apply,
     exposing_experiment,
@@ -47,7 +48,7 @@ from pneugym.discrepancy.prepare import (
     block_average,
     prepare,
 )
-from pneugym.discrepancy.residuals import PHASES, estimate_noise, replay
+from pneugym.discrepancy.residuals import PHASES, RunPhases, estimate_noise, replay
 from pneugym.discrepancy.stats import ar_whitener, f_test, lr_test, standard_errors, whiten
 from pneugym.discrepancy.workflow import CandidateResult
 from pneugym.plant import SimulationError
@@ -259,6 +260,30 @@ def test_decision_without_a_held_out_run_says_so():
     assert "passes every check" not in d.decision_
     assert "passes the 4 checks it could take" in d.decision_
     assert "not tested on a held-out run" in d.decision_ and "not validated" in d.decision_
+
+
+def test_own_phase_evidence():
+    """A leak and Stribeck friction must improve the fit in the trapped air after cut-off,
+    where they show and the line's and orifices' form matters least; a candidate without an
+    own phase, or runs without that phase, are not checked."""
+    assert CANDIDATES["leakage"].phase == CANDIDATES["stribeck_friction"].phase == "trapped"
+    assert CANDIDATES["sensor_lag"].phase is None
+    d = Discrepancy()
+    cut = np.array([0, 1, 1, 2, 2, 3])  # before motion, stroke, trapped, end of stroke
+    d.phases_ = [RunPhases(np.array([0, 1, 1, 3]), 0.1, 0.5, None), RunPhases(cut, 0.1, 0.5, 0.3)]
+    leak, lag = CANDIDATES["leakage"], CANDIDATES["sensor_lag"]
+    reasons: list[str] = []
+    bent = {"before_motion": 0.05, "stroke": 0.21, "trapped": -0.012, "end_supply": 0.16}
+    assert d._own_phase(leak, bent, reasons) is False  # bends the supply phases only
+    assert reasons == ["removes nothing in the trapped air after cut-off, where leakage shows "
+                       "(-1.2% of the calibrated model's misfit)"]
+    assert d._own_phase(leak, {**bent, "trapped": 0.03}, []) is True
+    assert d._own_phase(leak, {**bent, "trapped": 0.0}, []) is False
+    assert d._own_phase(lag, bent, []) is None
+    d.phases_ = d.phases_[:1]  # no run cut off: nothing to check against
+    assert d._own_phase(leak, bent, []) is None
+    with pytest.raises(ValueError, match="phase 'hold'"):
+        Candidate("x", (), phase="hold")
 
 
 # -- end to end: a hidden leak, which is also the thesis's expansion-index puzzle -----------------

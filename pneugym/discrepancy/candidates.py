@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..params import RigParams
+from .residuals import PHASES
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,14 @@ class Candidate:
     params: tuple[FitParam, ...]
     explains: str = ""
     typical: Mapping[str, float] = field(default_factory=dict)  # first start (natural units)
+    #: the phase of a run (one of ``residuals.PHASES``) where the effect shows most distinctly
+    #: and the model's form matters least: the candidate must improve the fit there
+    #: (``own_phase`` check) if a run has that phase. None: no such check.
+    phase: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.phase is not None and self.phase not in PHASES:
+            raise ValueError(f"Candidate {self.name}: phase {self.phase!r} must be one of {PHASES}")
 
     @property
     def magnitude(self) -> tuple[FitParam, ...]:
@@ -145,7 +154,7 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
         (FitParam("effects.leak_drive_area_m2", 0.0, 5e-6, 1e-7, null=0.0, start=(3e-8, 1e-6), unit="m²"),
          FitParam("effects.leak_piston_area_m2", 0.0, 5e-6, 1e-7, null=0.0, start=(3e-8, 1e-6), unit="m²")),
         "trapped pressure sagging after cut-off, exhaust pressure creeping up (seal leak)",
-        {"leak_drive_area_m2": 1e-7, "leak_piston_area_m2": 1e-7}),
+        {"leak_drive_area_m2": 1e-7, "leak_piston_area_m2": 1e-7}, phase="trapped"),
     Candidate(
         "heat_transfer",
         (FitParam("effects.heat_transfer_time_constant_s", 1e-3, 20.0, 1.0, log=True, null=0.0,
@@ -158,7 +167,7 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
          FitParam("effects.stribeck_velocity_m_s", 1e-3, 0.3, 0.01, log=True, start=(0.005, 0.08),
                   unit="m/s")),
         "extra friction at low speed: slow breakaway, creeping end of stroke (velocity weakening)",
-        {"stribeck_force_n": 100.0, "stribeck_velocity_m_s": 0.02}),
+        {"stribeck_force_n": 100.0, "stribeck_velocity_m_s": 0.02}, phase="trapped"),
     Candidate(
         "sensor_lag",
         (FitParam("effects.sensor_lag_s", 0.0, 0.2, 0.01, null=0.0, start=(0.002, 0.04), unit="s"),),

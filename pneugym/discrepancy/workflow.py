@@ -467,6 +467,7 @@ class Discrepancy:
         ssr_all1, ssr_all0 = ssr1 + (ssr1h or 0.0), ssr0 + (ssr0h or 0.0)
         score = 1.0 - ssr_all1 / ssr_all0 if ssr_all0 > 0 else 0.0
         by_phase = self._by_phase(seg0, segs, ssr_all0)
+        checks["own_phase"] = self._own_phase(cand, by_phase, reasons)
         passed = all(v for v in checks.values() if v is not None)
         return CandidateResult(
             name=cand.name, values=fr.as_dict(), effect=effect, stderr=stderr, z=z, at_bound=at_bound,
@@ -476,6 +477,19 @@ class Discrepancy:
             by_phase=by_phase, checks=checks, passed=passed, reasons=reasons, nfev=fr.nfev, start_ssr=fr.start_ssr,
             ssr_test=tssr1, ssr_test_holdout=tssr1h, material_fit=material_fit,
             material_holdout=material_h)
+
+    def _own_phase(self, cand: Candidate, by_phase: dict[str, float], reasons: list[str]) -> bool | None:
+        """Phase-wise evidence: does the candidate improve the fit in its own phase
+        (``Candidate.phase``; a leak and Stribeck friction: the trapped air after cut-off)?
+        A structural error a candidate bends towards the data elsewhere leaves that phase as
+        it was or worse. None if the candidate has no own phase or no run has it."""
+        own = cand.phase
+        if own is None or not any(ph.mask(own).any() for ph in self.phases_):
+            return None
+        if by_phase[own] <= 0.0:
+            reasons.append(f"removes nothing in the {PHASE_TEXT[own]}, where {cand.name} shows "
+                           f"({by_phase[own]:+.1%} of the calibrated model's misfit)")
+        return by_phase[own] > 0.0
 
     def _material(self, ssr0: float, ssr1: float, n: int) -> float:
         """The share of the calibrated model's misfit a candidate removes, as the material
