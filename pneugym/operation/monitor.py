@@ -80,8 +80,9 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
             ) -> list[dict[str, Any]]:
     """Run the workflow on ``run_id``'s record at strokes ``every``, ``2 every``, ... (from
     ``first`` to ``last`` if given; checkpoints already in the record are kept). ``workflow``:
-    options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0`` and
-    ``calibrate="basic"``, the calibration the monitor's published figures were measured with;
+    options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0``,
+    ``calibrate="basic"`` and ``discrepancy_term=None``, the settings the monitor's published
+    figures were measured with: its runs come from the plant itself, in the model's form;
     ``calibrate="extended"`` also frees the valve delay). Returns every checkpoint's answer, in
     order."""
     from tqdm import tqdm
@@ -116,7 +117,8 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 import time
 
                 t0 = time.perf_counter()
-                wf = Discrepancy(**{"seed": 0, "calibrate": "basic", **workflow}).fit(runs)
+                wf = Discrepancy(**{"seed": 0, "calibrate": "basic", "discrepancy_term": None,
+                                    **workflow}).fit(runs)
                 wall = time.perf_counter() - t0
             effect: dict[str, float] = {}
             cost: dict[str, float] = {}
