@@ -632,6 +632,22 @@ def test_noise_free_runs_without_a_gap(tmp_path, capsys):
     assert "(no gap to reduce)" in d.summary()
 
 
+def test_ambiguous_when_the_score_and_the_test_disagree():
+    """Ranked by the misfit removed, tested through the term: a runner-up fitting the whitened
+    residuals clearly better makes the answer ambiguous, and the decision says they disagree."""
+    d = Discrepancy()
+    a, b = _cand("sensor_lag", 10000.0), _cand("dead_volume", 12000.0)
+    a.ssr_test, b.ssr_test = 12000.0, 9000.0
+    d.candidates_, d.whiteners_ = [a, b], {}
+    d._decide()
+    assert d.named_effect_ == "ambiguous" and d.separation_["statistic"] < 0
+    assert "disagree: sensor_lag removes more of the misfit, dead_volume fits" in d.decision_
+    assert "about equally" not in d.decision_
+    d.candidates_ = [_cand("leakage", 10000.0), _cand("heat_transfer", 10000.5)]
+    d._decide()
+    assert "explain the data about equally" in d.decision_
+
+
 def test_exact_fits_and_zero_noise_do_not_divide_by_zero(protocol_runs):
     from pneugym.discrepancy.residuals import NOISE_FLOOR, noise_at_floor
     from pneugym.discrepancy.workflow import reduction, z_score

@@ -574,7 +574,10 @@ class Discrepancy:
                 self.named_effect_ = "ambiguous"
                 self.ambiguous_ = [a.name, b.name]
                 self.suggestion_ = separating_experiment(a.name, b.name)
-                self.decision_ = (f"ambiguous: {a.name} and {b.name} explain the data about equally "
+                how = ("explain the data about equally" if stat >= 0 else
+                       f"disagree: {a.name} removes more of the misfit, {b.name} fits the residuals"
+                       f"{' read through the discrepancy term' if getattr(self, 'whiteners_', None) else ''} better")
+                self.decision_ = (f"ambiguous: {a.name} and {b.name} {how} "
                                   f"(N_eff ln(SSR ratio) = {stat:.3g}, p = {p:.2g}); to separate "
                                   f"them: {self.suggestion_}{note}")
                 return
