@@ -231,9 +231,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-offset", type=int, default=0,
                     help="added to every case's seed: 0 for the cases the workflow was developed on, "
                          "50000 for the reported mismatched-form bench (held out from development)")
-    ap.add_argument("--discrepancy-term", choices=("ar", "none"), default="ar",
-                    help="the workflow's model of the structural error (default ar; none writes "
-                         "*_none.json)")
+    ap.add_argument("--discrepancy-term", choices=("none", "ar"), default="none",
+                    help="the workflow's model of the structural error (default none; ar writes "
+                         "*_ar.json)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:
@@ -258,7 +258,7 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     name = "discrepancy.json" if a.form == "matched" else "discrepancy_mismatched.json"
-    if a.discrepancy_term != "ar":
+    if a.discrepancy_term != "none":
         name = name.replace(".json", f"_{a.discrepancy_term}.json")
     (out / name).write_text(json.dumps(res, indent=2, default=float))
     print(f"\nwritten {out / name} ({res['total_wall_s']:.0f} s)")

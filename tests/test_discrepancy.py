@@ -322,22 +322,25 @@ def test_leak_is_named_and_the_gap_shrinks(leak_case):
     # where the evidence comes from: the shares per phase sum to the score, mostly trapped air
     assert sum(best.by_phase.values()) == pytest.approx(best.score)
     assert max(best.by_phase, key=best.by_phase.get) == "trapped"
-    # the default reads the residuals through the AR term (the missing leak is structure too)
-    assert d.config()["discrepancy_term"] == "ar" and d.min_improvement == 0.3
-    assert best.material_fit >= best.improvement_fit and best.n_eff > 0.5 * best.n_fit
-
-
-def test_without_the_discrepancy_term_the_leak_is_named_too(leak_case):
-    """``discrepancy_term=None``: the raw residuals, their autocorrelation deflating the sample
-    size, and the material check on the whole misfit (10 %)."""
-    _, _, runs, _, _ = leak_case
-    d = Discrepancy(["leakage", "sensor_lag"], discrepancy_term=None, **FAST).fit(runs)
-    assert d.whiteners_ is None and d.min_improvement == 0.1
-    assert d.config()["discrepancy_term"] is None
-    assert d.named_effect_ == "leakage", d.summary()
-    best = d.candidates_[0]
+    # the default reads the raw residuals: their autocorrelation deflates the sample size, and
+    # an effect must remove 10 % of the whole misfit
+    assert d.config()["discrepancy_term"] is None and d.whiteners_ is None
+    assert d.min_improvement == 0.1
     assert best.material_fit == pytest.approx(best.improvement_fit) and best.n_eff < best.n_fit
     assert "above the noise" not in " ".join(c for cand in d.candidates_ for c in cand.reasons)
+
+
+def test_with_the_discrepancy_term_the_leak_is_named_too(leak_case):
+    """``discrepancy_term="ar"``: the residuals whitened by the calibrated model's AR filters (the
+    missing leak is structure too), nearly their full sample size, and the material check on
+    the misfit above the noise (30 %)."""
+    _, _, runs, _, _ = leak_case
+    d = Discrepancy(["leakage", "sensor_lag"], discrepancy_term="ar", **FAST).fit(runs)
+    assert d.whiteners_ is not None and d.min_improvement == 0.3
+    assert d.config()["discrepancy_term"] == "ar"
+    assert d.named_effect_ == "leakage", d.summary()
+    best = d.candidates_[0]
+    assert best.material_fit >= best.improvement_fit and best.n_eff > 0.5 * best.n_fit
 
 
 def test_autoregressive_discrepancy_term_on_a_rig_of_another_form(tmp_path):

@@ -45,13 +45,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
     ap.add_argument("--min-improvement", type=float, default=None,
                     help="fraction of the calibrated model's misfit an effect must remove (default "
-                         "0.3 of the misfit above the noise; with --discrepancy-term none, 0.1 "
-                         "of the whole misfit)")
-    ap.add_argument("--discrepancy-term", choices=("ar", "none"), default="ar",
-                    help="model of the structural error the tests read the residuals through: ar "
-                         "(default: an autoregressive model fitted on the calibrated nominal model "
-                         "whitens every candidate's residuals; see docs/discrepancy.md) or none "
-                         "(the residuals' autocorrelation only deflates their sample size)")
+                         "0.1; with --discrepancy-term ar, 0.3 of the misfit above the noise)")
+    ap.add_argument("--discrepancy-term", choices=("none", "ar"), default="none",
+                    help="model of the structural error the tests read the residuals through: none "
+                         "(default: the residuals' autocorrelation deflates their sample size) or "
+                         "ar (an autoregressive model fitted on the calibrated nominal model "
+                         "whitens every candidate's residuals; an option for rigs whose form the "
+                         "model misses, see docs/discrepancy.md)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     ap.add_argument("--max-samples", type=int, default=MAX_SAMPLES,

@@ -82,7 +82,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
     ``first`` to ``last`` if given; checkpoints already in the record are kept). ``workflow``:
     options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0``,
     ``calibrate="basic"`` and ``discrepancy_term=None``, the settings the monitor's published
-    figures were measured with; with the term it misattributed drift sooner, docs/operation.md;
+    figures were measured with; with the AR term it misattributed drift sooner, docs/operation.md;
     ``calibrate="extended"`` also frees the valve delay). Returns every checkpoint's answer, in
     order."""
     from tqdm import tqdm
