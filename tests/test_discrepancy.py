@@ -167,6 +167,10 @@ def test_bad_settings_are_refused():
         Discrepancy(calibrate="everything")
     with pytest.raises(ValueError, match="discrepancy_term"):
         Discrepancy(discrepancy_term="gp")
+    # a slower valve is a candidate only where the calibration leaves the delay as stated
+    with pytest.raises(ValueError, match="valve_delay.*valve.delay_scale.*calibrate='basic'"):
+        Discrepancy(["leakage", "valve_delay"])
+    assert Discrepancy(["leakage", "valve_delay"], calibrate="basic").candidates[1].name == "valve_delay"
 
 
 # -- phases, noise, NRMSE ---------------------------------------------------------------------------

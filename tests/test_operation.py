@@ -223,6 +223,24 @@ def test_exports_parquet_and_measured_runs(gaslaw_life, tmp_path):
         pytest.approx(200.0)
 
 
+def test_exported_runs_state_the_valve_delay_at_their_supply(tmp_path):
+    """The commissioned valve switches faster at a higher supply (thesis Fig. 3.6); the format
+    states the delay itself, so each exported stroke states it at that stroke's supply (stated
+    at the commissioning supply, a 3 bar stroke read as a valve 8 % slower than it is)."""
+    from pneugym.data import read_run
+    from pneugym.params import RigParams
+
+    db = tmp_path / "s.duckdb"
+    rid = operate(Scenario("three-bar", drift={"supply_pressure_gauge_pa": 3e5}), "gaslaw",
+                  strokes=2, db=db, block=2, progress=False)
+    with Record(db, read_only=True) as rec:
+        run = read_run(export_runs(rec, rid, tmp_path / "runs", 0, 0)[0])
+    stated = run.meta["rig"]["valve_delay_s"]
+    assert run.meta["supply_pressure_gauge_pa"] == 3e5
+    assert stated == pytest.approx(RigParams(supply_pressure_gauge_pa=3e5).valve_delay_s)
+    assert stated < 0.95 * RigParams().valve_delay_s  # 0.170 s at 3 bar against 0.185 s
+
+
 def test_report_tables_plots_and_recovery(gaslaw_life, tmp_path):
     db, _, ids = gaslaw_life
     res = write_report(db, tmp_path / "rep")
@@ -371,6 +389,23 @@ def test_monitor_names_a_leak_with_its_cost_and_nothing_on_a_healthy_rig(tmp_pat
         monitor(str(db), "nope/seed0/gaslaw", progress=False)
 
 
+def test_monitor_names_a_slower_valve_when_asked_to_test_it(tmp_path):
+    """Wear slows the valve; with ``valve_delay`` among the candidates the monitor names it
+    (the fitted factor on the commissioned delay), and records what it costs in air."""
+    from pneugym.operation.monitor import alarm, monitor
+
+    db = tmp_path / "v.duckdb"
+    rid = operate(Scenario("slow-valve", drift={"valve_delay_scale": 1.4}), "gaslaw", strokes=12,
+                  db=db, block=12, progress=False)
+    pts = monitor(str(db), rid, every=12, window=4, progress=False,
+                  candidates=["dead_volume", "valve_delay"], n_starts=1, n_probe=4, max_nfev=20)
+    hit = pts[0]
+    assert hit["named"] == "valve_delay", hit["decision"]
+    assert hit["effect"]["valve.delay_scale"] == pytest.approx(1.4, rel=0.05)
+    assert set(hit["air_cost"]) >= {"conventional_nl", "extra_per_stroke_conventional_nl"}
+    assert alarm(pts).startswith("valve_delay: valve.delay_scale 1.4")
+
+
 def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
     import pneugym.operation.run as R
     from pneugym.cli import main
@@ -379,6 +414,9 @@ def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
         raise AssertionError("the work started before the outputs were checked")
 
     monkeypatch.setattr(R, "operate", no_work)
+    with pytest.raises(SystemExit) as exc:  # a change the monitor does not know, refused first
+        main(["operate", "--monitor", "x/seed0/gaslaw", "--monitor-candidates", "leakage,valve"])
+    assert exc.value.code == 2
     (tmp_path / "file").write_text("")
     for argv in (["--out", str(tmp_path / "file")], ["--db", str(tmp_path)]):
         with pytest.raises(SystemExit) as exc:
@@ -410,6 +448,9 @@ def test_air_cost_of_any_named_effect():
     assert leak["extra_per_stroke_conventional_nl"] > 0
     assert dead["extra_per_stroke_conventional_nl"] > 0  # more volume to fill
     assert leak["conventional_nl"] == dead["conventional_nl"]
+    slow = air_cost({"valve.delay_scale": 1.5}, 0.9, 2.5e5, 10.0)  # a rig field, not an effect
+    assert slow["conventional_nl"] == leak["conventional_nl"]
+    assert slow["cut_with_effect_nl"] < slow["cut_nl"]  # the supply opens later before the cut
 
 
 def test_alarm_reads_an_ambiguous_answer_as_a_change():

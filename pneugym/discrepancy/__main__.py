@@ -37,7 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run to hold out: a run name, 'auto' (default: the median run by cut-off "
                          "time) or 'none'")
     ap.add_argument("--candidates", default=",".join(CANDIDATES),
-                    help=f"comma-separated candidate effects (default: {','.join(CANDIDATES)})")
+                    help=f"comma-separated candidate effects (default: {','.join(CANDIDATES)}; "
+                         "also valve_delay, a valve slower than stated, with --calibrate basic)")
     ap.add_argument("--starts", type=int, default=None,
                     help="least-squares starts per fit (default 4; 2 for --hold)")
     ap.add_argument("--probe", type=int, default=24, help="start points screened per fit (default 24)")

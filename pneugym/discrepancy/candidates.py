@@ -180,6 +180,22 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
         {"dead_volume_m3": 5e-5}),
 )}
 
+#: A change an ageing rig makes beyond the five effects: its valve switches later than
+#: commissioned (spool and seal wear, a slower pilot). The condition monitor tests it beside
+#: the five effects (its basic calibration keeps the stated delay; a slower valve otherwise reads
+#: as an extra dead volume). The workflow's extended calibration frees the delay itself, so there
+#: it cannot be a candidate.
+VALVE_DELAY = Candidate(
+    "valve_delay",
+    (FitParam("valve.delay_scale", 0.5, 3.0, 1.0, log=True, log_step=0.1, null=1.0,
+              start=(0.8, 1.8), unit="x stated", relative=True),),
+    "every pressure change and the motion start later than commissioned, their course as before "
+    "(a slower valve: spool wear, a slow pilot)",
+    {"delay_scale": 1.2})
+
+#: Candidates beyond :data:`CANDIDATES`, by name (not tested unless asked for).
+MORE_CANDIDATES: dict[str, Candidate] = {VALVE_DELAY.name: VALVE_DELAY}
+
 #: Experiments that separate two candidates (keys: sorted name pairs).
 SEPARATING_EXPERIMENTS: dict[tuple[str, str], str] = {
     ("heat_transfer", "leakage"):
@@ -207,6 +223,15 @@ SEPARATING_EXPERIMENTS: dict[tuple[str, str], str] = {
         "a fill with the piston blocked: a dead volume slows the pressure rise, friction does not act",
     ("heat_transfer", "stribeck_friction"):
         "a fill and hold with the piston blocked: heat transfer shows as a pressure drift, friction not",
+    ("dead_volume", "valve_delay"):
+        "a fill with the piston blocked and the valve's command recorded: a slower valve shifts the "
+        "whole pressure rise later, an extra volume makes it slower",
+    ("sensor_lag", "valve_delay"):
+        "a fast reference transducer at the port: a sensor lag delays only the measured pressures, a "
+        "slower valve the pressure and the motion alike",
+    ("leakage", "valve_delay"):
+        "a hold after cut-off at the end of stroke: a leak lowers the trapped pressure, the valve's "
+        "timing does not",
 }
 
 
@@ -222,6 +247,8 @@ EXPOSING_EXPERIMENTS: dict[str, str] = {
     "sensor_lag": "a step of pressure measured by a fast reference transducer beside the slow one",
     "dead_volume": "a fill with the piston blocked at the start of stroke, with mdot_supply recorded: "
                    "an extra volume slows the pressure rise for the same flow",
+    "valve_delay": "the valve's command and the first pressure rise at the port recorded at 1 kHz or "
+                   "faster: the delay between them",
 }
 
 

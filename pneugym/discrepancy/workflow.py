@@ -35,6 +35,7 @@ from ..params import RigParams
 from ..plant import SimulationError
 from .candidates import (
     CANDIDATES,
+    MORE_CANDIDATES,
     Candidate,
     FitParam,
     apply,
@@ -136,7 +137,9 @@ class Discrepancy:
 
     Parameters
     ----------
-    candidates : names in :data:`CANDIDATES` or :class:`Candidate` objects (default: all five).
+    candidates : names in :data:`CANDIDATES` (default: all five) or
+        :data:`~pneugym.discrepancy.candidates.MORE_CANDIDATES` (``"valve_delay"``, with
+        ``calibrate="basic"`` only), or :class:`Candidate` objects.
     holdout : ``"auto"`` (the median run when the runs are ordered by cut-off time, a run
         never cut off counting as the latest: with the thesis protocol the end-stroke cut-off,
         bracketed by the early cut-off and the conventional run), a run name, or ``None`` (no
@@ -181,14 +184,21 @@ class Discrepancy:
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
                 cands.append(c)
-            elif c in CANDIDATES:
-                cands.append(CANDIDATES[c])
+            elif c in CANDIDATES or c in MORE_CANDIDATES:
+                cands.append(CANDIDATES.get(c) or MORE_CANDIDATES[c])
             else:
-                raise ValueError(f"unknown candidate {c!r}; choose from {sorted(CANDIDATES)}")
+                raise ValueError(f"unknown candidate {c!r}; choose from "
+                                 f"{sorted(CANDIDATES) + sorted(MORE_CANDIDATES)}")
         if not cands:
             raise ValueError("at least one candidate is needed")
         if calibrate not in ("extended", "basic"):
             raise ValueError(f"Discrepancy calibrate = {calibrate!r} must be 'extended' or 'basic'")
+        freed = {q.path for q in nominal_params(RigParams(), extended=calibrate == "extended")}
+        for c in cands:
+            both = freed.intersection(q.path for q in c.params)
+            if both:
+                raise ValueError(f"candidate {c.name!r} fits {', '.join(sorted(both))}, which the "
+                                 f"{calibrate} calibration frees already; use calibrate='basic'")
         self.calibrate = calibrate
         if discrepancy_term not in (None, "ar"):
             raise ValueError(f"Discrepancy discrepancy_term = {discrepancy_term!r} must be None or 'ar'")

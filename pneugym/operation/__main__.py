@@ -53,10 +53,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="strokes between monitoring checkpoints (default 250)")
     p.add_argument("--window", type=int, default=6,
                    help="strokes the workflow reads at each checkpoint (default 6)")
+    p.add_argument("--monitor-candidates", metavar="LIST",
+                   help="comma-separated changes the monitor tests (default: the five effects, "
+                        "leakage,heat_transfer,stribeck_friction,sensor_lag,dead_volume; add "
+                        "valve_delay to test a valve slower than commissioned)")
     p.add_argument("--first", type=int, default=0, help="first stroke to export")
     p.add_argument("--last", type=int, default=None, help="last stroke to export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def _candidates(args: argparse.Namespace) -> dict:
+    """``--monitor-candidates`` as the workflow's ``candidates`` (empty: its default)."""
+    if not args.monitor_candidates:
+        return {}
+    from pneugym.discrepancy.candidates import CANDIDATES, MORE_CANDIDATES
+
+    names = [c.strip() for c in args.monitor_candidates.split(",") if c.strip()]
+    bad = [c for c in names if c not in CANDIDATES and c not in MORE_CANDIDATES]
+    if bad or not names:
+        raise ValueError(f"--monitor-candidates {args.monitor_candidates!r}: unknown {bad}; "
+                         f"choose from {[*CANDIDATES, *MORE_CANDIDATES]}")
+    return {"candidates": names}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -66,6 +84,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--policy needs --scenario")
     if args.scenario and not args.policy:
         parser.error("--scenario needs at least one --policy")
+    try:
+        cands = _candidates(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     if not (args.policy or args.out or args.export_parquet or args.export_runs
             or args.monitor or args.remove):
         parser.error("nothing to do: give --scenario and --policy, --out, --monitor, "
@@ -103,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         try:
             pts = monitor(args.db, rid, every=args.every, window=args.window,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, **cands)
         except ValueError as exc:
             parser.error(str(exc))
         print(f"{rid}: {alarm(pts)}")

@@ -50,8 +50,9 @@ def _pick(strokes: np.ndarray, cut_s: np.ndarray, window: int) -> np.ndarray:
 def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
              load_kg: float, dwell_s: float | None = None) -> dict[str, float]:
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
-    value}``): a conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig, each
-    with the rest at the stroke end (``dwell_s``, default the operating
+    value}``, or ``{"group.field": value}`` for another rig field, e.g. ``valve.delay_scale``): a
+    conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig, each with the
+    rest at the stroke end (``dwell_s``, default the operating
     :data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy
     from pneugym.envs import Conditions
@@ -63,7 +64,11 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
     cond = Conditions(supply_pressure_gauge_pa=supply_gauge_pa, load_mass_kg=load_kg)
     t = np.array([math.inf, cut_s])
     nl = []
-    for rig in (RigParams(), RigParams().with_(effects=dict(effect))):
+    groups: dict[str, dict[str, float]] = {}
+    for k, v in effect.items():
+        g, name = k.split(".", 1) if "." in k else ("effects", k)
+        groups.setdefault(g, {})[name] = float(v)
+    for rig in (RigParams(), RigParams().with_(**groups)):
         env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=rig)
         f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t), [cond, cond],
                             np.zeros(2, dtype=bool), 0, False,
@@ -83,8 +88,12 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
     options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0``,
     ``calibrate="basic"`` and ``discrepancy_term=None``, the settings the monitor's published
     figures were measured with; with the AR term it misattributed drift sooner, docs/operation.md;
-    ``calibrate="extended"`` also frees the valve delay). Returns every checkpoint's answer, in
-    order."""
+    ``calibrate="extended"`` also frees the valve delay; ``candidates=[*CANDIDATES,
+    "valve_delay"]`` tests a valve slower than commissioned beside the five effects, which
+    names the valve's ageing under wear where the five read it as a dead volume, measured on
+    development lives only, docs/operation.md). A named change is recorded with its fitted
+    values (``{field: value}`` for an effect, ``{"valve.delay_scale": x}`` for the valve) and
+    its air cost. Returns every checkpoint's answer, in order."""
     from tqdm import tqdm
 
     from pneugym.data import read_runs
@@ -123,8 +132,9 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
             effect: dict[str, float] = {}
             cost: dict[str, float] = {}
             if wf.named_effect_ not in ("none", "ambiguous"):
-                effect = {k.split(".", 1)[1]: v for k, v in wf.fitted_params_.items()
-                          if k.startswith("effects.")}
+                named = next(c for c in wf.candidates if c.name == wf.named_effect_)
+                effect = {(q.name if q.path.startswith("effects.") else q.path):
+                          wf.fitted_params_[q.path] for q in named.params}
                 t = rec.frame("SELECT supply_setpoint_pa, cutoff_time_s FROM strokes WHERE "
                               "run_id = ? AND stroke BETWEEN ? AND ?", [run_id, c - every, c - 1])
                 load = float(runs[-1].meta["load_mass_kg"])

@@ -289,8 +289,10 @@ def _py(v: Any) -> Any:
 def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
                 last: int | None = None) -> list[Path]:
     """Strokes ``first`` to ``last`` of a run as ``pneugym-measurement/1`` runs in ``out`` (one
-    CSV + JSON pair per stroke, at the control rate; the rig section is the operated rig, the
-    load and supply each stroke's), e.g. for the discrepancy workflow."""
+    CSV + JSON pair per stroke, at the control rate; the rig section is the operated rig as
+    commissioned at each stroke's supply, whose valve switches faster at a higher supply
+    (thesis Fig. 3.6; the format states the delay itself), the load and supply each stroke's),
+    e.g. for the discrepancy workflow."""
     from ..data import FORMAT, MeasuredRun, write_run
     from ..params import RigParams
 
@@ -313,7 +315,7 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
              "ambient_pressure_pa": rig.gas.ambient_pressure_pa,
              "ambient_temperature_k": rig.gas.ambient_temperature_k,
              "sample_rate_hz": 1.0 / float(np.median(np.diff(tr["t"]))),
-             "rig": rig.to_measurement_rig(),
+             "rig": rig.with_(supply_pressure_gauge_pa=float(ps)).to_measurement_rig(),
              "description": "conventional" if np.isnan(tc) else "early_cutoff",
              "operation": {"run_id": run_id, "stroke": int(k)}}
         files.append(write_run(MeasuredRun(
