@@ -406,6 +406,28 @@ def test_monitor_names_a_slower_valve_when_asked_to_test_it(tmp_path):
     assert alarm(pts).startswith("valve_delay: valve.delay_scale 1.4")
 
 
+def test_monitor_tests_the_five_effects_and_a_slower_valve_by_default(tmp_path, monkeypatch):
+    import pneugym.discrepancy as D
+    from pneugym.operation.monitor import MONITORED, monitor
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def capture(**kw):
+        seen.update(kw)
+        raise Stop
+
+    db = tmp_path / "d.duckdb"
+    rid = operate("healthy", "gaslaw", strokes=10, db=db, block=10, progress=False)
+    monkeypatch.setattr(D, "Discrepancy", capture)
+    with pytest.raises(Stop):
+        monitor(str(db), rid, every=10, window=3, progress=False)
+    assert seen["candidates"] == MONITORED and "valve_delay" in MONITORED
+    assert seen["calibrate"] == "basic" and seen["discrepancy_term"] is None
+
+
 def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
     import pneugym.operation.run as R
     from pneugym.cli import main

@@ -54,9 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=int, default=6,
                    help="strokes the workflow reads at each checkpoint (default 6)")
     p.add_argument("--monitor-candidates", metavar="LIST",
-                   help="comma-separated changes the monitor tests (default: the five effects, "
-                        "leakage,heat_transfer,stribeck_friction,sensor_lag,dead_volume; add "
-                        "valve_delay to test a valve slower than commissioned)")
+                   help="comma-separated changes the monitor tests (default: leakage,"
+                        "heat_transfer,stribeck_friction,sensor_lag,dead_volume,valve_delay: "
+                        "the five effects and a valve slower than commissioned)")
     p.add_argument("--first", type=int, default=0, help="first stroke to export")
     p.add_argument("--last", type=int, default=None, help="last stroke to export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
