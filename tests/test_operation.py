@@ -426,6 +426,9 @@ def test_monitor_tests_the_five_effects_and_a_slower_valve_by_default(tmp_path, 
         monitor(str(db), rid, every=10, window=3, progress=False)
     assert seen["candidates"] == MONITORED and "valve_delay" in MONITORED
     assert seen["calibrate"] == "basic" and seen["discrepancy_term"] is None
+    with pytest.raises(Stop):  # the extended calibration frees the delay: the five are left
+        monitor(str(db), rid, every=10, window=3, progress=False, calibrate="extended")
+    assert seen["candidates"] == tuple(D.CANDIDATES) and "valve_delay" not in seen["candidates"]
 
 
 def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):

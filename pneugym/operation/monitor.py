@@ -96,15 +96,17 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
     ``calibrate="basic"``, ``discrepancy_term=None`` and ``candidates=MONITORED``, the five
     effects and a slower valve: the settings the monitor's published figures were measured with;
     with the AR term it misattributed drift sooner, docs/operation.md; ``calibrate="extended"``
-    frees the valve delay in the calibration instead, then give
-    ``candidates=list(CANDIDATES)``). A named change is recorded with its fitted values
+    frees the valve delay in the calibration instead, and then tests the five effects). A
+    named change is recorded with its fitted values
     (``{field: value}`` for an effect, ``{"valve.delay_scale": x}`` for the valve) and its air
     cost. Returns every checkpoint's answer, in order."""
     from tqdm import tqdm
 
     from pneugym.data import read_runs
-    from pneugym.discrepancy import Discrepancy
+    from pneugym.discrepancy import CANDIDATES, Discrepancy
 
+    # the extended calibration frees the valve delay itself: the five effects are left to test
+    default = MONITORED if workflow.get("calibrate", "basic") == "basic" else tuple(CANDIDATES)
     if not (isinstance(every, int) and every >= 10 and isinstance(window, int) and window >= 3):
         raise ValueError(f"every = {every!r} (>= 10 strokes) and window = {window!r} (>= 3 runs)")
     with Record(db) as rec:
@@ -133,7 +135,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
 
                 t0 = time.perf_counter()
                 wf = Discrepancy(**{"seed": 0, "calibrate": "basic", "discrepancy_term": None,
-                                    "candidates": MONITORED, **workflow}).fit(runs)
+                                    "candidates": default, **workflow}).fit(runs)
                 wall = time.perf_counter() - t0
             effect: dict[str, float] = {}
             cost: dict[str, float] = {}
