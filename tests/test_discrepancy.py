@@ -25,6 +25,7 @@ from pneugym.data import (
 )
 from pneugym.discrepancy import (
     CANDIDATES,
+    MORE_CANDIDATES,
     Discrepancy,
     effective_sample_size,
     nrmse,
@@ -154,7 +155,10 @@ def test_fit_param_transforms_and_candidates():
         assert out.valve.exhaust_area_m2 == pytest.approx(0.8 * rig.valve.exhaust_area_m2)
         assert out.cylinder.port_area_m2 == pytest.approx(1.2 * rig.cylinder.port_area_m2)
         assert out.cylinder.cushion_length_m == pytest.approx(0.9 * rig.cylinder.cushion_length_m)
-    assert set(EXPOSING_EXPERIMENTS) == set(CANDIDATES)  # every candidate says what would expose it
+    # every candidate, the valve's included, says what would expose it
+    assert set(EXPOSING_EXPERIMENTS) == set(CANDIDATES) | set(MORE_CANDIDATES)
+    valve = apply(thesis_rig(2.0), MORE_CANDIDATES["valve_delay"].params, [1.3])
+    assert valve.valve_delay_s == pytest.approx(1.3 * thesis_rig(2.0).valve_delay_s)
     assert "hold" in exposing_experiment("leakage") and "slow strokes" in exposing_experiment("stribeck_friction")
 
 
