@@ -175,6 +175,16 @@ def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="valve_delay.*valve.delay_scale.*calibrate='basic'"):
         Discrepancy(["leakage", "valve_delay"])
     assert Discrepancy(["leakage", "valve_delay"], calibrate="basic").candidates[1].name == "valve_delay"
+    # a parameter calibrated besides the nominal ones is fitted once, and is a FitParam
+    valve = MORE_CANDIDATES["valve_delay"].params
+    with pytest.raises(ValueError, match="calibrate_also: valve.delay_scale is fitted already"):
+        Discrepancy(["leakage"], calibrate_also=valve)  # the extended calibration frees it
+    with pytest.raises(ValueError, match="calibrate_also: valve.delay_scale"):
+        Discrepancy(["valve_delay"], calibrate="basic", calibrate_also=valve)
+    with pytest.raises(ValueError, match="FitParam"):
+        Discrepancy(calibrate_also=["valve.delay_scale"])
+    d = Discrepancy(["leakage"], calibrate="basic", calibrate_also=valve)
+    assert d.config()["calibrate_also"] == ["valve.delay_scale"]
 
 
 # -- phases, noise, NRMSE ---------------------------------------------------------------------------
@@ -751,3 +761,44 @@ def test_predict_and_score_are_bounded_like_the_fit(leak_case, single_long_run, 
     short = d.predict(runs[0])
     np.testing.assert_array_equal(short["t"], runs[0].t)
     assert short["x"].shape == runs[0].x.shape
+
+
+def test_each_runs_own_friction_and_a_calibration_on_it():
+    """Friction that varies from run to run: :func:`own_friction` fits each run's and states it;
+    the workflow then fits one factor on each run's friction (the same transformed variable as
+    the absolute fit), and on runs stating one friction it fits the friction itself."""
+    from pneugym.discrepancy.fit import own_friction
+
+    known = thesis_rig(2.5)
+    absolute = nominal_params(known, extended=False)
+    relative = nominal_params(known, extended=False, relative_friction=True)
+    for a, r in zip(absolute, relative):
+        if a.path.startswith("friction."):
+            assert r.relative and r.stated(known) == 1.0 and r.unit == "x stated"
+            stated = float(getattr(known.friction, r.name))
+            assert r.to_u(1.3) == pytest.approx(a.to_u(1.3 * stated))
+            assert (r.lo * stated, r.hi * stated) == pytest.approx((a.lo, a.hi))
+        else:
+            assert r == a
+    runs = []
+    for k, f in enumerate((0.8, 1.25)):
+        truth = known.with_(friction={"coulomb_n": f * known.friction.coulomb_n,
+                                      "viscous_n_s_per_m": f * known.friction.viscous_n_s_per_m})
+        runs.append(simulate_run(truth, t_end=1.5, sample_rate_hz=200.0, noise="default",
+                                 known=known, seed=k, name=f"f{f}"))
+    own = own_friction(runs)
+    sigma = estimate_noise(runs)
+    for before, after in zip(runs, own):
+        rms = [float(np.sqrt(np.mean(((r.x - replay(r, r.rig())["x"]) / sigma["x"]) ** 2)))
+               for r in (before, after)]
+        assert rms[1] < 0.2 * rms[0], rms  # its own friction reproduces each run's motion
+    stated = [r.rig().friction for r in own]
+    assert stated[1].viscous_n_s_per_m + 0.2 * stated[1].coulomb_n > \
+        stated[0].viscous_n_s_per_m + 0.2 * stated[0].coulomb_n  # more friction where there is
+    quick = {**FAST, "n_starts": 1, "n_probe": 2, "max_nfev": 10}
+    wf = Discrepancy(["dead_volume"], calibrate="basic", holdout=None, **quick).fit(own)
+    assert wf.relative_friction_
+    assert all(p.relative for p in wf.nominal_params_ if p.path.startswith("friction."))
+    assert wf.named_effect_ == "none", wf.decision_
+    assert not Discrepancy(["dead_volume"], calibrate="basic", holdout=None, **quick) \
+        .fit(runs[:1]).relative_friction_

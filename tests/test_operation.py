@@ -406,6 +406,41 @@ def test_monitor_names_a_slower_valve_when_asked_to_test_it(tmp_path):
     assert alarm(pts).startswith("valve_delay: valve.delay_scale 1.4")
 
 
+def test_a_second_pass_names_the_leak_behind_the_slower_valve(tmp_path):
+    """Wear slows the valve and opens a leak: the first pass names the valve; the second, with
+    the valve written into the model and each stroke's own friction, names the leak too."""
+    from pneugym.operation.monitor import alarm, monitor
+
+    db = tmp_path / "w.duckdb"
+    rid = operate(Scenario("worn", drift={"valve_delay_scale": 1.4, "leak_drive_area_m2": 4e-7}),
+                  "gaslaw", strokes=12, db=db, block=12, progress=False)
+    pts = monitor(str(db), rid, every=12, window=4, progress=False,
+                  candidates=["leakage", "valve_delay"], n_starts=1, n_probe=4, max_nfev=20)
+    hit = pts[0]
+    assert hit["named"] == "valve_delay+leakage", hit["decision"]
+    assert hit["effect"]["valve.delay_scale"] == pytest.approx(1.4, rel=0.05)
+    assert hit["effect"]["leak_drive_area_m2"] == pytest.approx(4e-7, rel=0.25)
+    assert " | then: leakage" in hit["decision"]
+    assert hit["air_cost"]["extra_per_stroke_conventional_nl"] > 0
+    assert alarm(pts).startswith("valve_delay+leakage: valve.delay_scale 1.4")
+
+
+def test_a_named_change_is_written_into_the_runs_for_the_next_pass():
+    from pneugym.data import simulate_run
+    from pneugym.operation.monitor import apply_named
+    from pneugym.params import RigParams
+
+    run = simulate_run(RigParams(), t_end=0.5, sample_rate_hz=100.0, name="r")
+    (slow,), base = apply_named([run], {"valve.delay_scale": 1.3})
+    assert base is None and slow.rig().valve_delay_s == pytest.approx(1.3 * run.rig().valve_delay_s)
+    assert run.meta["rig"]["valve_delay_s"] == pytest.approx(RigParams().valve_delay_s)  # a copy
+    (same,), base = apply_named([run], {"leak_drive_area_m2": 2e-7, "dead_volume_m3": 1e-5})
+    assert same is run and same.rig(base).effects.leak_drive_area_m2 == 2e-7
+    assert same.rig(base).effects.dead_volume_m3 == 1e-5
+    with pytest.raises(ValueError, match="cylinder.bore_m"):
+        apply_named([run], {"cylinder.bore_m": 0.05})
+
+
 def test_monitor_tests_the_five_effects_and_a_slower_valve_by_default(tmp_path, monkeypatch):
     import pneugym.discrepancy as D
     from pneugym.operation.monitor import MONITORED, monitor
@@ -419,16 +454,23 @@ def test_monitor_tests_the_five_effects_and_a_slower_valve_by_default(tmp_path, 
         seen.update(kw)
         raise Stop
 
+    import pneugym.discrepancy.fit as F
+
+    fitted = []
     db = tmp_path / "d.duckdb"
     rid = operate("healthy", "gaslaw", strokes=10, db=db, block=10, progress=False)
     monkeypatch.setattr(D, "Discrepancy", capture)
+    monkeypatch.setattr(F, "own_friction", lambda runs, base=None: fitted.append(len(runs)) or runs)
     with pytest.raises(Stop):
         monitor(str(db), rid, every=10, window=3, progress=False)
-    assert seen["candidates"] == MONITORED and "valve_delay" in MONITORED
+    assert list(seen["candidates"]) == list(MONITORED) and "valve_delay" in MONITORED
     assert seen["calibrate"] == "basic" and seen["discrepancy_term"] is None
+    assert seen["calibrate_also"] == ()  # nothing named yet
+    assert fitted == [3]  # each stroke's own friction, before the first pass
     with pytest.raises(Stop):  # the extended calibration frees the delay: the five are left
         monitor(str(db), rid, every=10, window=3, progress=False, calibrate="extended")
-    assert seen["candidates"] == tuple(D.CANDIDATES) and "valve_delay" not in seen["candidates"]
+    assert list(seen["candidates"]) == list(D.CANDIDATES)
+    assert "valve_delay" not in seen["candidates"]
 
 
 def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
@@ -441,6 +483,9 @@ def test_cli_checks_its_outputs_before_the_work(tmp_path, monkeypatch):
     monkeypatch.setattr(R, "operate", no_work)
     with pytest.raises(SystemExit) as exc:  # a change the monitor does not know, refused first
         main(["operate", "--monitor", "x/seed0/gaslaw", "--monitor-candidates", "leakage,valve"])
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["operate", "--monitor", "x/seed0/gaslaw", "--monitor-passes", "0"])
     assert exc.value.code == 2
     (tmp_path / "file").write_text("")
     for argv in (["--out", str(tmp_path / "file")], ["--db", str(tmp_path)]):
@@ -532,3 +577,16 @@ def test_a_run_without_strokes_is_reported_not_crashed(tmp_path):
     res = write_report(db, tmp_path / "rep")
     assert res["runs"]["healthy/seed0/x"]["strokes"] == 0
     assert "| x | 0 | - | - | - |" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_cli_hands_the_monitor_its_options(tmp_path, monkeypatch):
+    import pneugym.operation.monitor as M
+    from pneugym.cli import main
+
+    got = {}
+    monkeypatch.setattr(M, "monitor", lambda db, rid, **kw: got.update(kw) or [])
+    argv = ["operate", "--db", str(tmp_path / "x.duckdb"), "--monitor", "a/seed0/gaslaw",
+            "--no-progress"]
+    assert main(argv) == 0 and "passes" not in got and "stroke_friction" not in got
+    assert main(argv + ["--monitor-passes", "1", "--monitor-friction", "shared"]) == 0
+    assert got["passes"] == 1 and got["stroke_friction"] is False

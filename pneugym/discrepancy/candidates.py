@@ -117,7 +117,8 @@ EXTENDED = (
 )
 
 
-def nominal_params(rig: RigParams, extended: bool = True) -> tuple[FitParam, ...]:
+def nominal_params(rig: RigParams, extended: bool = True,
+                   relative_friction: bool = False) -> tuple[FitParam, ...]:
     """The nominal parameters calibrated before any effect (issue step 2), around the values
     ``rig`` states: orifice discharge coefficient of all orifices (0.5x to 1.3x the stated
     value, at most 1), static (breakaway), Coulomb and viscous friction; log-scaled (one
@@ -125,7 +126,9 @@ def nominal_params(rig: RigParams, extended: bool = True) -> tuple[FitParam, ...
     and port areas and the cushion length, as factors on each run's stated value
     (:data:`EXTENDED`): a real rig differs from its model in form as well as in numbers, and
     these parameters absorb much of that before any effect is tried. The dead volume is not
-    freed: it is a candidate effect."""
+    freed: it is a candidate effect. With ``relative_friction`` the friction is fitted as
+    factors on each run's stated friction (the same bounds and transformed variable), for runs
+    that state friction of their own (each stroke's, :func:`pneugym.operation.monitor.monitor`)."""
     cd = rig.valve.discharge_coefficient
     fr = rig.friction
     out = [FitParam("valve.discharge_coefficient", 0.5 * cd, min(1.0, 1.3 * cd), cd, log=True,
@@ -135,10 +138,14 @@ def nominal_params(rig: RigParams, extended: bool = True) -> tuple[FitParam, ...
                                            ("viscous_n_s_per_m", fr.viscous_n_s_per_m, 1557.0, 0.02, 5.0)):
         ref = val if val > 0 else default
         unit = "N s/m" if name.startswith("viscous") else "N"
+        rel = relative_friction and val > 0
+        if rel:  # u = ln(factor) / 0.1 on the stated value: the same u as the absolute fit's
+            ref, unit = 1.0, "x stated"
         # the breakaway moment is resolved to a substep: the SSR is a staircase in static_n,
         # so its finite difference spans several stairs (3 %)
         out.append(FitParam(f"friction.{name}", lo_f * ref, hi_f * ref, ref, log=True, log_step=0.1,
-                            unit=unit, diff_step=0.3 if name == "static_n" else None))
+                            unit=unit, diff_step=0.3 if name == "static_n" else None,
+                            relative=rel))
     if extended:
         for path, lo, hi, unit in EXTENDED:
             if path == "cylinder.cushion_length_m":  # a cushion stays shorter than half the stroke

@@ -162,6 +162,10 @@ class Discrepancy:
         delay, exhaust and port areas and cushion length as factors on the stated values) or
         ``"basic"`` (the discharge coefficient and friction only); see
         :func:`~pneugym.discrepancy.candidates.nominal_params`.
+    calibrate_also : further parameters calibrated with the nominal ones before any candidate
+        (:class:`FitParam`), e.g. a change named in an earlier pass of the condition monitor,
+        fitted again beside every candidate so that a candidate gets no credit for what the
+        earlier change explains.
     discrepancy_term : the structural error's model the tests read the residuals through.
         ``None`` (default): no term; the residuals' autocorrelation deflates their effective
         sample size (:func:`~pneugym.discrepancy.stats.inflation`). ``"ar"``: an
@@ -179,7 +183,8 @@ class Discrepancy:
                  n_starts: int = 4, n_probe: int = 24, max_nfev: int = 40, alpha: float = 0.01,
                  min_improvement: float | None = None, z_min: float = 3.0, seed: int = 0,
                  n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES,
-                 calibrate: str = "extended", discrepancy_term: str | None = None):
+                 calibrate: str = "extended", discrepancy_term: str | None = None,
+                 calibrate_also: Iterable[FitParam] = ()):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -200,6 +205,14 @@ class Discrepancy:
                 raise ValueError(f"candidate {c.name!r} fits {', '.join(sorted(both))}, which the "
                                  f"{calibrate} calibration frees already; use calibrate='basic'")
         self.calibrate = calibrate
+        self.calibrate_also = tuple(calibrate_also)
+        if not all(isinstance(q, FitParam) for q in self.calibrate_also):
+            raise ValueError("Discrepancy calibrate_also: give FitParam objects")
+        clash = {q.path for q in self.calibrate_also} & (
+            freed | {q.path for c in cands for q in c.params})
+        if clash:
+            raise ValueError(f"Discrepancy calibrate_also: {', '.join(sorted(clash))} is fitted "
+                             f"already (by the calibration or a candidate)")
         if discrepancy_term not in (None, "ar"):
             raise ValueError(f"Discrepancy discrepancy_term = {discrepancy_term!r} must be None or 'ar'")
         self.discrepancy_term = discrepancy_term
@@ -232,7 +245,8 @@ class Discrepancy:
                 "n_starts": self.n_starts, "n_probe": self.n_probe, "max_nfev": self.max_nfev,
                 "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
                 "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples,
-                "calibrate": self.calibrate, "discrepancy_term": self.discrepancy_term}
+                "calibrate": self.calibrate, "discrepancy_term": self.discrepancy_term,
+                "calibrate_also": [q.path for q in self.calibrate_also]}
 
     def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
         """Run the workflow on measured runs (or paths to runs / folders of runs).
@@ -254,8 +268,13 @@ class Discrepancy:
         hold = self._choose_holdout()
         self.holdout_runs_ = [r for r in runs if r.name == hold]
         self.fit_runs_ = [r for r in runs if r.name != hold]
+        # runs that state friction of their own (each stroke's): the calibration fits one
+        # factor on each run's friction instead of one friction for all
+        self.relative_friction_ = len({(g.friction.static_n, g.friction.coulomb_n,
+                                        g.friction.viscous_n_s_per_m) for g in self.rigs_}) > 1
         nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)],
-                             extended=self.calibrate == "extended")
+                             extended=self.calibrate == "extended",
+                             relative_friction=self.relative_friction_) + self.calibrate_also
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
         # use the rigs as the plant builds them (automatic substep)

@@ -57,24 +57,38 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated changes the monitor tests (default: leakage,"
                         "heat_transfer,stribeck_friction,sensor_lag,dead_volume,valve_delay: "
                         "the five effects and a valve slower than commissioned)")
+    p.add_argument("--monitor-passes", type=int, metavar="N",
+                   help="passes at each checkpoint: each after the first writes the changes "
+                        "named so far into the model and tests the rest (default 2)")
+    p.add_argument("--monitor-friction", choices=("stroke", "shared"),
+                   help="stroke: fit each stroke's own friction first (default); shared: one "
+                        "friction for the window's strokes")
     p.add_argument("--first", type=int, default=0, help="first stroke to export")
     p.add_argument("--last", type=int, default=None, help="last stroke to export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
-def _candidates(args: argparse.Namespace) -> dict:
-    """``--monitor-candidates`` as the workflow's ``candidates`` (empty: its default)."""
-    if not args.monitor_candidates:
-        return {}
+def _monitor_options(args: argparse.Namespace) -> dict:
+    """``--monitor-candidates``, ``--monitor-passes`` and ``--monitor-friction`` as the
+    monitor's options (absent: its defaults)."""
     from pneugym.discrepancy.candidates import CANDIDATES, MORE_CANDIDATES
 
+    out: dict = {}
+    if args.monitor_passes is not None:
+        if args.monitor_passes < 1:
+            raise ValueError(f"--monitor-passes {args.monitor_passes}: give 1 or more")
+        out["passes"] = args.monitor_passes
+    if args.monitor_friction is not None:
+        out["stroke_friction"] = args.monitor_friction == "stroke"
+    if not args.monitor_candidates:
+        return out
     names = [c.strip() for c in args.monitor_candidates.split(",") if c.strip()]
     bad = [c for c in names if c not in CANDIDATES and c not in MORE_CANDIDATES]
     if bad or not names:
         raise ValueError(f"--monitor-candidates {args.monitor_candidates!r}: unknown {bad}; "
                          f"choose from {[*CANDIDATES, *MORE_CANDIDATES]}")
-    return {"candidates": names}
+    return {**out, "candidates": names}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -85,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scenario and not args.policy:
         parser.error("--scenario needs at least one --policy")
     try:
-        cands = _candidates(args)
+        options = _monitor_options(args)
     except ValueError as exc:
         parser.error(str(exc))
     if not (args.policy or args.out or args.export_parquet or args.export_runs
@@ -125,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         try:
             pts = monitor(args.db, rid, every=args.every, window=args.window,
-                          progress=not args.no_progress, **cands)
+                          progress=not args.no_progress, **options)
         except ValueError as exc:
             parser.error(str(exc))
         print(f"{rid}: {alarm(pts)}")

@@ -87,28 +87,109 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
             "extra_per_stroke_cut_nl": nl[3] - nl[1]}
 
 
+def apply_named(runs: list[Any], effect: dict[str, float]) -> tuple[list[Any], Any]:
+    """``runs`` and a base rig with a named change written in, for a further pass: a slower
+    valve as a factor on each run's stated delay (``valve.delay_scale``), an effect
+    (``{EffectParams field: value}``) into the base rig the runs' JSON is read over."""
+    import copy
+    import dataclasses
+
+    from pneugym.params import RigParams
+
+    effects: dict[str, float] = {}
+    out = list(runs)
+    for k, v in effect.items():
+        if k == "valve.delay_scale":
+            metas = [copy.deepcopy(r.meta) for r in out]
+            for m in metas:
+                m["rig"]["valve_delay_s"] = float(m["rig"]["valve_delay_s"]) * float(v)
+            out = [dataclasses.replace(r, meta=m) for r, m in zip(out, metas)]
+        elif "." not in k:
+            effects[k] = float(v)
+        else:
+            raise ValueError(f"cannot write the named change {k!r} into the runs")
+    return out, (RigParams().with_(effects=effects) if effects else None)
+
+
+def examine(runs: list[Any], candidates: Any, passes: int = 2, stroke_friction: bool = True,
+            **workflow: Any) -> dict[str, Any]:
+    """The workflow on one window's runs, in up to ``passes`` passes: each pass after the first
+    writes the changes named so far into the model and tests the candidates left, so that a
+    second change behind the first (a leak behind a slower valve) is named too; the changes
+    named so far are calibrated again beside every candidate (``calibrate_also``), so a
+    candidate gets no credit for what they explain. With
+    ``stroke_friction`` each stroke's own friction is fitted first and the calibration fits
+    one factor on it (:func:`~pneugym.discrepancy.fit.own_friction`). Returns ``named`` (the
+    changes joined by ``+``, ``none`` or ``ambiguous``), ``decision`` (every pass's), ``effect``
+    (their fitted values) and the last pass's workflow (``workflow``)."""
+    from pneugym.discrepancy import Discrepancy
+    from pneugym.discrepancy.fit import own_friction
+
+    if not (isinstance(passes, int) and passes >= 1):
+        raise ValueError(f"passes = {passes!r}: an integer >= 1")
+    left = list(candidates)
+    named: list[str] = []
+    decisions: list[str] = []
+    effect: dict[str, float] = {}
+    found: tuple = ()  # the named changes' parameters, calibrated again in every later pass
+    cur, base = list(runs), None
+    for k in range(passes):
+        if k:
+            cur, base = apply_named(runs, effect)
+        if stroke_friction:
+            cur = own_friction(cur, base=base)
+        wf = Discrepancy(**{"seed": 0, "calibrate": "basic", "discrepancy_term": None,
+                            **workflow, "candidates": left, "calibrate_also": found}
+                         ).fit(cur, base=base)
+        decisions.append(wf.decision_)
+        if wf.named_effect_ in ("none", "ambiguous"):
+            if not named:
+                named.append(wf.named_effect_)
+            break
+        cand = next(c for c in wf.candidates if c.name == wf.named_effect_)
+        named.append(cand.name)
+        for q in found:  # the earlier changes as fitted beside this one
+            key = q.name if q.path.startswith("effects.") else q.path
+            v = wf.fitted_params_[q.path]
+            effect[key] = effect[key] * v if q.relative else v
+        effect.update({(q.name if q.path.startswith("effects.") else q.path):
+                       wf.fitted_params_[q.path] for q in cand.params})
+        found += cand.params
+        left = [c for c in left if getattr(c, "name", c) != cand.name]
+        if not left:
+            break
+    return {"named": "+".join(named), "decision": " | then: ".join(decisions),
+            "effect": effect if named[0] not in ("none", "ambiguous") else {}, "workflow": wf}
+
+
 def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int | None = None,
-            last: int | None = None, progress: bool = True, **workflow: Any
-            ) -> list[dict[str, Any]]:
+            last: int | None = None, progress: bool = True, passes: int = 2,
+            stroke_friction: bool = True, **workflow: Any) -> list[dict[str, Any]]:
     """Run the workflow on ``run_id``'s record at strokes ``every``, ``2 every``, ... (from
-    ``first`` to ``last`` if given; checkpoints already in the record are kept). ``workflow``:
+    ``first`` to ``last`` if given; checkpoints already in the record are kept), in up to
+    ``passes`` passes with each stroke's own friction (``stroke_friction``; see
+    :func:`examine`). ``workflow``:
     options of :class:`~pneugym.discrepancy.Discrepancy` (default ``seed=0``,
     ``calibrate="basic"``, ``discrepancy_term=None`` and ``candidates=MONITORED``, the five
     effects and a slower valve: the settings the monitor's published figures were measured with;
     with the AR term it misattributed drift sooner, docs/operation.md; ``calibrate="extended"``
     frees the valve delay in the calibration instead, and then tests the five effects). A
     named change is recorded with its fitted values
-    (``{field: value}`` for an effect, ``{"valve.delay_scale": x}`` for the valve) and its air
+    (``{field: value}`` for an effect, ``{"valve.delay_scale": x}`` for the valve; two changes
+    as ``"valve_delay+leakage"`` with both's values) and its air
     cost. Returns every checkpoint's answer, in order."""
     from tqdm import tqdm
 
     from pneugym.data import read_runs
-    from pneugym.discrepancy import CANDIDATES, Discrepancy
+    from pneugym.discrepancy import CANDIDATES
 
     # the extended calibration frees the valve delay itself: the five effects are left to test
     default = MONITORED if workflow.get("calibrate", "basic") == "basic" else tuple(CANDIDATES)
+    candidates = workflow.pop("candidates", default)
     if not (isinstance(every, int) and every >= 10 and isinstance(window, int) and window >= 3):
         raise ValueError(f"every = {every!r} (>= 10 strokes) and window = {window!r} (>= 3 runs)")
+    if not (isinstance(passes, int) and passes >= 1):
+        raise ValueError(f"passes = {passes!r}: an integer >= 1")
     with Record(db) as rec:
         rec.con.execute(MONITOR_SCHEMA)
         run = rec.run(run_id)
@@ -134,15 +215,10 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 import time
 
                 t0 = time.perf_counter()
-                wf = Discrepancy(**{"seed": 0, "calibrate": "basic", "discrepancy_term": None,
-                                    "candidates": default, **workflow}).fit(runs)
+                got = examine(runs, candidates, passes, stroke_friction, **workflow)
                 wall = time.perf_counter() - t0
-            effect: dict[str, float] = {}
-            cost: dict[str, float] = {}
-            if wf.named_effect_ not in ("none", "ambiguous"):
-                named = next(c for c in wf.candidates if c.name == wf.named_effect_)
-                effect = {(q.name if q.path.startswith("effects.") else q.path):
-                          wf.fitted_params_[q.path] for q in named.params}
+            effect, cost = got["effect"], {}
+            if effect:
                 t = rec.frame("SELECT supply_setpoint_pa, cutoff_time_s FROM strokes WHERE "
                               "run_id = ? AND stroke BETWEEN ? AND ?", [run_id, c - every, c - 1])
                 load = float(runs[-1].meta["load_mass_kg"])
@@ -150,7 +226,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                                 float(np.median(t["supply_setpoint_pa"])), load,
                                 float(run["config"].get("dwell_s", 0.0)))
             rec.con.execute("INSERT OR REPLACE INTO monitor VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                            [run_id, c, int(c - every), wf.named_effect_, wf.decision_,
+                            [run_id, c, int(c - every), got["named"], got["decision"],
                              json.dumps(effect), json.dumps(cost), wall])
         return checkpoints(rec, run_id)
 
