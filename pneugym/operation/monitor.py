@@ -258,7 +258,7 @@ def alarm(points: list[dict[str, Any]]) -> str:
     where = f"first significant in strokes {hit['first_stroke']}-{hit['stroke'] - 1}"
     if hit["named"] == "ambiguous":
         return f"a change it cannot name ({hit['decision']}), {where}"
-    vals = ", ".join(f"{k} {v:.2g}" for k, v in hit["effect"].items() if v > 0)
+    vals = ", ".join(f"{k} {v:.3g}" for k, v in hit["effect"].items() if v > 0)
     cost = hit["air_cost"].get("extra_per_stroke_conventional_nl")
     extra = f"; costs {cost:.3f} NL per conventional stroke" if cost is not None else ""
     return f"{hit['named']}: {vals}, {where}{extra}"
