@@ -4,9 +4,10 @@ the recent record of an operating run, at checkpoints (:func:`monitor`).
 At every ``every``-th stroke it takes ``window`` strokes since the last checkpoint, their cut-off
 times spread as widely as the record allows (reference strokes and a controller's exploration
 give it different ones) (their sensor traces at the control rate, exported as ``pneugym-measurement/1`` runs
-with the rig as commissioned), lets the workflow calibrate the nominal model (Cd and friction: wear
-and temperature move them) and test every candidate (the five effects and a slower valve), and
-records its answer: the effect
+with the rig as commissioned), fits each stroke's own friction, lets the workflow calibrate the
+nominal model (Cd and a factor on each stroke's friction: wear and temperature move them) and
+test every candidate (the five effects and a slower valve), then, in a second pass with the
+named change written in, the candidates left (:func:`examine`), and records its answer: the effect
 named (or ``none``), the fitted values and, for a named effect, what it costs in air (the free air
 of a conventional stroke and of the window's median cut, with and without the effect, on the
 plant). The exported runs state each stroke's payload, as an operator who knows the product's mass
@@ -87,6 +88,12 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
             "extra_per_stroke_cut_nl": nl[3] - nl[1]}
 
 
+def _key(q: Any) -> str:
+    """How a named change records a fitted parameter: an effect by its field, else
+    ``"group.field"``."""
+    return q.name if q.path.startswith("effects.") else q.path
+
+
 def apply_named(runs: list[Any], effect: dict[str, float]) -> tuple[list[Any], Any]:
     """``runs`` and a base rig with a named change written in, for a further pass: a slower
     valve as a factor on each run's stated delay (``valve.delay_scale``), an effect
@@ -149,11 +156,9 @@ def examine(runs: list[Any], candidates: Any, passes: int = 2, stroke_friction: 
         cand = next(c for c in wf.candidates if c.name == wf.named_effect_)
         named.append(cand.name)
         for q in found:  # the earlier changes as fitted beside this one
-            key = q.name if q.path.startswith("effects.") else q.path
             v = wf.fitted_params_[q.path]
-            effect[key] = effect[key] * v if q.relative else v
-        effect.update({(q.name if q.path.startswith("effects.") else q.path):
-                       wf.fitted_params_[q.path] for q in cand.params})
+            effect[_key(q)] = effect[_key(q)] * v if q.relative else v
+        effect.update({_key(q): wf.fitted_params_[q.path] for q in cand.params})
         found += cand.params
         left = [c for c in left if getattr(c, "name", c) != cand.name]
         if not left:
