@@ -269,7 +269,7 @@ class AdaptiveESAC(Frozen):
 
     def __init__(self, spec: str, env: Any, seed: int = 0, adapt_every: int = 250,
                  window: int = 1000, holdout: float = 0.25, epochs: int = 30, lr: float = 5e-4,
-                 min_gain: float = 0.02, explore: float = 0.2,
+                 min_gain: float = 0.02, explore: float = 0.1,
                  explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
                  tune_window: int = 250, tune_z: float = 2.0):
         super().__init__(spec, env, seed)
