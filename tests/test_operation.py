@@ -466,7 +466,10 @@ def test_monitor_tests_the_five_effects_and_a_slower_valve_by_default(tmp_path, 
     monkeypatch.setattr(F, "own_friction", lambda runs, base=None: fitted.append(len(runs)) or runs)
     with pytest.raises(Stop):
         monitor(str(db), rid, every=10, window=3, progress=False)
-    assert list(seen["candidates"]) == list(MONITORED) and "valve_delay" in MONITORED
+    assert list(seen["candidates"]) == list(MONITORED)
+    # the workflow's five effects, in its order, and the slower valve (written out in the
+    # monitor, which does not import the workflow until a checkpoint runs)
+    assert MONITORED == (*D.CANDIDATES, D.candidates.VALVE_DELAY.name)
     assert seen["calibrate"] == "basic" and seen["discrepancy_term"] is None
     assert seen["calibrate_also"] == ()  # nothing named yet
     assert fitted == [3]  # each stroke's own friction, before the first pass

@@ -28,7 +28,8 @@ from .record import Record, export_runs
 
 #: What the monitor tests by default: the workflow's five effects and a valve slower than
 #: commissioned (:data:`~pneugym.discrepancy.candidates.VALVE_DELAY`), which wear and age bring
-#: and which the five alone read as an extra dead volume (docs/operation.md).
+#: and which the five alone read as an extra dead volume (docs/operation.md). Written out:
+#: importing the workflow takes seconds, and a checkpoint does it only when it runs.
 MONITORED: tuple[str, ...] = ("leakage", "heat_transfer", "stribeck_friction", "sensor_lag",
                               "dead_volume", "valve_delay")
 
