@@ -103,25 +103,34 @@ class OraclePolicy(TimedCutPolicy):
 
     def plan_many(self, conditions: Sequence[Any]) -> list[tuple[float, float]]:
         """:meth:`plan` for many conditions, searched together (two batched runs)."""
+        todo = [c for c in conditions if c.physics_key() not in self._cache]
+        if todo:
+            for key, js in self._search(todo).items():
+                t = max(js, key=js.get)
+                self._cache[key] = (float(t), float(js[t]))
+        return [self._cache[c.physics_key()] for c in conditions]
+
+    def returns_many(self, conditions: Sequence[Any]) -> list[dict[float, float]]:
+        """The return of every cut-off time [s] the search tried for each of ``conditions``
+        (``inf``: never cutting); with ``coarse=1`` every control step up to the conventional
+        stroke's end and the decision window."""
+        scores = self._search(conditions)
+        return [scores[c.physics_key()] for c in conditions]
+
+    def _search(self, conditions: Sequence[Any]) -> dict[Any, dict[float, float]]:
         from pneugym.envs import conventional_figures
 
         todo = {}
         for c in conditions:
-            if c.physics_key() not in self._cache:
-                todo.setdefault(c.physics_key(), type(c)(
-                    **{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0}))
-        if todo:
-            window = float(self.env_config.get("decision_window_s", 0.02))
-            ranges = {}
-            for key, c in todo.items():
-                t_conv, _ = conventional_figures(c.rig(self.base_rig), c.dip)
-                ranges[key] = (0, int(math.ceil((t_conv + window) / self.period)) + 1)
-            scores = search_cuts(lambda cands: self.score_cuts(todo, cands), ranges, self.period,
-                                 self.coarse)
-            for key, js in scores.items():
-                t = max(js, key=js.get)
-                self._cache[key] = (float(t), float(js[t]))
-        return [self._cache[c.physics_key()] for c in conditions]
+            todo.setdefault(c.physics_key(), type(c)(
+                **{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0}))
+        window = float(self.env_config.get("decision_window_s", 0.02))
+        ranges = {}
+        for key, c in todo.items():
+            t_conv, _ = conventional_figures(c.rig(self.base_rig), c.dip)
+            ranges[key] = (0, int(math.ceil((t_conv + window) / self.period)) + 1)
+        return search_cuts(lambda cands: self.score_cuts(todo, cands), ranges, self.period,
+                           self.coarse)
 
     def score_cuts(self, conds: dict, cands: dict) -> dict[Any, dict[float, float]]:
         """Returns of cut-off times: ``conds`` ``{key: Conditions}`` (noise-free), ``cands``

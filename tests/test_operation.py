@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -596,3 +597,28 @@ def test_cli_hands_the_monitor_its_options(tmp_path, monkeypatch):
     assert main(argv) == 0 and "passes" not in got and "stroke_friction" not in got
     assert main(argv + ["--monitor-passes", "1", "--monitor-friction", "shared"]) == 0
     assert got["passes"] == 1 and got["stroke_friction"] is False
+
+
+def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path):
+    """benchmarks/bench_operation_oracle.py on a short record: the search oracle's own run
+    scores 1 against it and at most 1 against every step's best, the conventional one 0 against
+    all; every step's best is never below the search's, the slip-robust cut never above it."""
+    import importlib.util
+
+    db, _, ids = gaslaw_life
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_operation_oracle.py"
+    spec = importlib.util.spec_from_file_location("bench_operation_oracle", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    res = bench.main(["--db", str(db), "--out", str(tmp_path), "--no-progress"])
+    assert (tmp_path / "oracles.json").exists() and (tmp_path / "oracles.png").exists()
+    o, c = res["runs"][ids["oracle"]], res["runs"][ids["conventional"]]
+    assert o["search"]["life"] == pytest.approx(1.0, abs=1e-9)
+    assert o["every step"]["life"] <= 1.0 + 1e-9
+    for y in bench.YARDSTICKS:
+        assert c[y]["life"] == pytest.approx(0.0, abs=1e-9)
+    (sc,) = res["scenarios"].values()
+    assert sc["drift_steps"] == 6 and sc["mean_gain_every_step_over_search"] >= 0.0
+    assert sc["mean_loss_slip_robust_against_every_step"] >= 0.0
+    with pytest.raises(SystemExit):
+        bench.main(["--db", str(db), "--slip", "0"])
