@@ -59,7 +59,7 @@ def step_returns(scenario: dict, seed: int, strokes: np.ndarray, slip: int, chun
     return out
 
 
-def fractions(j: np.ndarray, jc: np.ndarray, jo: np.ndarray) -> float:
+def fraction(j: np.ndarray, jc: np.ndarray, jo: np.ndarray) -> float:
     """The share of the oracle's gain over the conventional controller, summed."""
     return float((j.sum() - jc.sum()) / (jo.sum() - jc.sum()))
 
@@ -105,8 +105,8 @@ def main(argv: list[str] | None = None) -> dict:
             j, jc = s["objective"].astype(float), t["conventional_objective"][i]
             reg = ~(s["reference"].astype(bool) | s["explore"].astype(bool))
             res["runs"][r["run_id"]] = {
-                y: {"life": fractions(j, jc, jo[i]), "regular": fractions(j[reg], jc[reg],
-                                                                          jo[i][reg])}
+                y: {"life": fraction(j, jc, jo[i]),
+                    "regular": fraction(j[reg], jc[reg], jo[i][reg])}
                 for y, jo in best[r["scenario"], r["seed"]].items()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
