@@ -256,3 +256,19 @@ def test_oracle_is_privileged(oracle):
     assert oracle.plan(noisy) == oracle.plan(NOMINAL["2.5"])
     with pytest.raises(ValueError, match="coarse"):
         OraclePolicy(lay, coarse=0)
+
+
+def test_every_step_search_tries_every_control_step(oracle):
+    """``returns_many`` with ``coarse=1``: every control step up to the conventional stroke's
+    end and the window, and never cutting; its best is the default search's plan or better, and
+    equals it where the returns are smooth (the thesis rig at 2.5 bar)."""
+    env = CutOffEnv()
+    full = OraclePolicy(env.observation_layout(), coarse=1)
+    cond = NOMINAL["2.5"]
+    (js,) = full.returns_many([cond])
+    steps = sorted(round(t / full.period) for t in js if math.isfinite(t))
+    assert math.inf in js and steps == list(range(steps[-1] + 1)) and steps[-1] > 150
+    t_best, j_best = oracle.plan(cond)
+    assert max(js.values()) == pytest.approx(j_best, abs=1e-12) and js[t_best] == j_best
+    (coarse,) = oracle.returns_many([cond])  # the default search tries fewer
+    assert set(coarse) < set(js) and all(js[t] == v for t, v in coarse.items())
