@@ -602,7 +602,8 @@ def test_cli_hands_the_monitor_its_options(tmp_path, monkeypatch):
 def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path):
     """benchmarks/bench_operation_oracle.py on a short record: the search oracle's own run
     scores 1 against it and at most 1 against every step's best, the conventional one 0 against
-    all; every step's best is never below the search's, the slip-robust cut never above it."""
+    all; every step's best is never below the search's, the slip-robust cut's return never
+    above every step's best."""
     import importlib.util
 
     db, _, ids = gaslaw_life
