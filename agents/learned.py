@@ -150,7 +150,7 @@ def layout_differences(model: Mapping[str, Any], env: Mapping[str, Any]) -> list
     er = [_feature_key(f) for f in env.get("rig_features") or []]
     if mr != er:
         diffs.append(f"rig features {[k[0] for k in mr]} (model) vs {[k[0] for k in er]} (env): "
-                     f"observe_rig differs")
+                     f"observe_rig or observe_commissioning differs")
     mp = [_feature_key(f) for f in model.get("param_features", [])]
     ep = [_feature_key(f) for f in env.get("param_features", [])]
     if mp != ep:
@@ -225,15 +225,18 @@ class LearnedPolicy(Policy):
         self.source = source
         self.model_layout = dict(model_layout)
         nf = len(env_layout["features"])
-        n_rig = len(env_layout.get("rig_features") or [])
+        env_rig = list(env_layout.get("rig_features") or [])
+        keep = len(model_layout.get("rig_features") or [])
         self._rig_cols: np.ndarray | None = None
-        if n_rig and not model_layout.get("rig_features"):
-            # the environment observes the rig's datasheet values, the model never learned to:
-            # their columns are dropped before the model sees the observation
+        if keep < len(env_rig) and [f["name"] for f in env_rig[:keep]] == [
+                f["name"] for f in model_layout.get("rig_features") or []]:
+            # the environment observes rig features the model never learned to read (its
+            # datasheet values, a commissioning stroke's): their columns are dropped before the
+            # model sees the observation
             start = int(env_layout["history"]) * nf
-            self._rig_cols = np.arange(start, start + n_rig)
-            env_layout = {**env_layout, "rig_features": [],
-                          "size": int(env_layout["size"]) - n_rig}
+            self._rig_cols = np.arange(start + keep, start + len(env_rig))
+            env_layout = {**env_layout, "rig_features": env_rig[:keep],
+                          "size": int(env_layout["size"]) - (len(env_rig) - keep)}
         stack = check_layout(model_layout, env_layout, source)
         extra = len(env_layout.get("param_features", [])) + len(env_layout.get("rig_features")
                                                                    or [])

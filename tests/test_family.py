@@ -203,8 +203,21 @@ def test_models_without_rig_features_run_where_the_rig_is_observed(tmp_path):
     pol.act(obs)
     assert pol.seen.shape == (2, plain["size"])  # rig columns dropped, then stacked
     assert (pol.seen[:, -7:] == obs[:, :7]).all()
-    with pytest.raises(LayoutMismatchError, match="observe_rig differs"):
+    with pytest.raises(LayoutMismatchError, match="observe_rig or observe_commissioning differs"):
         Echo(plain, rich)  # a family model cannot run without what it reads
+    # a model of the datasheet and the stroke's events, where a commissioning stroke is observed
+    # as well: only the commissioning columns are dropped
+    told = CutOffVectorEnv(num_envs=1, observe_rig=True,
+                           observe_commissioning=True).observation_layout()
+    assert told["size"] == rich["size"] + 6
+    assert [f["name"] for f in told["rig_features"][:7]] == [
+        f["name"] for f in rich["rig_features"]]
+    pol = Echo(told, rich)
+    obs = np.arange(2 * told["size"], dtype=np.float32).reshape(2, -1)
+    pol.act(obs)
+    assert (pol.seen == obs[:, :rich["size"]]).all()
+    with pytest.raises(LayoutMismatchError, match="observe_commissioning differs"):
+        Echo(rich, told)
 
 
 @pytest.mark.parametrize("name", ["esac-family", "ppo-family"])

@@ -22,9 +22,10 @@ LEARNED = ("esac", "ppo", "dqn", "esac-family", "ppo-family")
 
 def evaluation_env_config(env_config: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The environment options every evaluation runs with: ``env_config`` and the rig's
-    datasheet values observed (``observe_rig``), which models trained on a family of rigs read
-    and the others never see (:class:`agents.learned.LearnedPolicy` drops their columns)."""
-    return {"observe_rig": True, **dict(env_config or {})}
+    datasheet values and its commissioning stroke observed (``observe_rig``,
+    ``observe_commissioning``), which models trained on a family of rigs read and the others
+    never see (:class:`agents.learned.LearnedPolicy` drops their columns)."""
+    return {"observe_rig": True, "observe_commissioning": True, **dict(env_config or {})}
 
 
 def parse_spec(spec: str) -> tuple[str, str | None, dict[str, Any]]:

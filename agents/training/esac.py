@@ -36,8 +36,9 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
         raise ValueError(f"training seeds {seed}..{seed + n_train - 1} overlap the held-out test "
                          f"seeds from {test['seed']}: choose another --seed")
     env_cfg: dict[str, Any] = {"history": history}
-    if cfg["env"].get("observe_rig"):
-        env_cfg["observe_rig"] = True
+    for flag in ("observe_rig", "observe_commissioning"):
+        if cfg["env"].get(flag):
+            env_cfg[flag] = True
     if cfg.get("rig") is not None:
         env_cfg["rig"] = cfg["rig"]
     rig_cfg = {k: v for k, v in env_cfg.items() if k != "history"}

@@ -105,9 +105,11 @@ def config_schema(algo: str) -> Section:
 
         fields = {
             **common,
-            "env": Section({"history": integer(1, MAX_HISTORY), "observe_rig": boolean},
+            "env": Section({"history": integer(1, MAX_HISTORY), "observe_rig": boolean,
+                            "observe_commissioning": boolean},
                            "ESAC environment option (ESAC trains on the environment's defaults: "
-                           "only history and observe_rig are configurable)",
+                           "only history, observe_rig and observe_commissioning are "
+                           "configurable)",
                            required=("history",)),
             "test": Section({"episodes": integer(1, 100_000), "seed": seed_spec},
                             "test entry", required=("episodes", "seed")),

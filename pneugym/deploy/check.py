@@ -48,7 +48,9 @@ def check_equivalence(make_policy: Callable[[Any], Any], conditions: Sequence[An
     from ..envs.cutoff import CutOffVectorEnv
     from ..envs.family import apply_changes
 
-    cfg = {"observe_rig": True, **dict(env_config or {})}
+    from ..envs.commissioning import condition_features
+
+    cfg = {"observe_rig": True, "observe_commissioning": True, **dict(env_config or {})}
     probe = CutOffVectorEnv(num_envs=len(conditions), autoreset=False, **cfg)
     traces = environment_trace(make_policy(probe), conditions, seed, cfg)
     base = probe.rig
@@ -57,6 +59,7 @@ def check_equivalence(make_policy: Callable[[Any], Any], conditions: Sequence[An
     for k, (cond, tr) in enumerate(zip(conditions, traces)):
         env = CutOffVectorEnv(num_envs=1, **{**cfg, "rig": apply_changes(base, cond.rig_changes)})
         ctl = Controller(make_policy(env), env)
+        ctl.set_commissioning(condition_features(cond, base))  # as the environment was told
         ctl.reset(cond.supply_pressure_gauge_pa + base.gas.ambient_pressure_pa,
                   cond.load_mass_kg)
         for j in range(tr["t"].size):

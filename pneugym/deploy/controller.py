@@ -18,7 +18,8 @@ import numpy as np
 
 from ..envs import episode as EP
 from ..envs.conditions import Conditions
-from ..envs.cutoff import OBS_BOUND, RIG_OBSERVATION, datasheet_features, stroke_events
+from ..envs.cutoff import (COMMISSIONING_OBSERVATION, OBS_BOUND, RIG_OBSERVATION,
+                           datasheet_features, stroke_events)
 from ..params import RigParams
 
 #: Policies that cannot run on a real rig, and why.
@@ -47,9 +48,12 @@ class Controller:
     """One cylinder's cut-off controller around a policy built for ``env`` (a
     ``pneugym/CutOff-v0`` environment, single or vector, whose rig, control period, time limit
     and observation layout the controller takes; build it with ``observe_rig=True`` for the
-    policies that read the rig's datasheet values).
+    policies that read the rig's datasheet values, and ``observe_commissioning=True`` as well
+    for those that read a commissioning stroke, :mod:`pneugym.envs.commissioning`).
 
-    Call :meth:`reset` at every extend command, then :meth:`step` once per control period with
+    A policy that reads a commissioning stroke needs one recorded at the operating point it runs
+    at (extend, cut off on arrival, held 1.5 s after it): give it with
+    :meth:`set_commissioning` or to :meth:`reset`. Call :meth:`reset` at every extend command, then :meth:`step` once per control period with
     the newest samples; it returns the valve command (0 keep the supply, 1 cut it off), latched
     once cut. Use :meth:`load` to build one from a policy's name or a trained model.
     """
@@ -80,6 +84,16 @@ class Controller:
         self._scales = u._scales.copy()
         self._n_hist = int(u.history)
         self._n_rig = len(RIG_OBSERVATION) if u.observe_rig else 0
+        self._n_comm = len(COMMISSIONING_OBSERVATION) if u.observe_commissioning else 0
+        model = getattr(policy, "model_layout", None) or {}
+        names = {f.name for f in COMMISSIONING_OBSERVATION}
+        #: whether the policy reads a commissioning stroke's features
+        self.reads_commissioning = any(f.get("name") in names
+                                       for f in model.get("rig_features") or [])
+        if self.reads_commissioning and not self._n_comm:
+            raise ValueError(f"{source} reads a commissioning stroke's features; build the "
+                             f"environment with observe_commissioning=True")
+        self.commissioning: np.ndarray | None = None
         self._sense = EP.sense
         self._hist = np.zeros((self._n_hist, EP.NF))
         self._obs = np.zeros((1, int(self.layout["size"])), dtype=np.float32)
@@ -122,14 +136,45 @@ class Controller:
                else env_cfg.get("control_period_s", 0.005),
                "time_limit_s": time_limit_s if time_limit_s is not None
                else env_cfg.get("time_limit_s", 4.0)}
-        env = CutOffVectorEnv(num_envs=1, rig=rig, observe_rig=True, **cfg)
+        env = CutOffVectorEnv(num_envs=1, rig=rig, observe_rig=True, observe_commissioning=True,
+                              **cfg)
         policy = _policy(name, path, env, backend, policy_kwargs)
         return cls(policy, env, source=getattr(policy, "source", name))
 
+    def set_commissioning(self, stroke: Any) -> None:
+        """The commissioning stroke the next strokes run with: a measured run (a
+        :class:`~pneugym.data.MeasuredRun` or the path of its JSON) of the rig at the operating
+        point, extended, cut off on arrival and held at least 1.5 s after it, or its features
+        (:func:`pneugym.envs.commissioning.run_features`). Raises ``ValueError`` for a run that
+        never arrives or ends too soon."""
+        from ..data import MeasuredRun
+        from ..envs.commissioning import run_features
+
+        if isinstance(stroke, (MeasuredRun, str, os.PathLike)):
+            feats = run_features(stroke, self.rig.cylinder.stroke_m)
+        else:
+            feats = np.asarray(stroke, dtype=float).reshape(-1)
+            if feats.size != len(COMMISSIONING_OBSERVATION) or not np.isfinite(feats).all():
+                raise ValueError(f"commissioning features must be "
+                                 f"{len(COMMISSIONING_OBSERVATION)} finite numbers "
+                                 f"({[f.name for f in COMMISSIONING_OBSERVATION]}), got "
+                                 f"{stroke!r}")
+        self.commissioning = feats
+
     # -- running -------------------------------------------------------------------------------
-    def reset(self, supply_setpoint_pa: float, load_mass_kg: float | None = None) -> None:
+    def reset(self, supply_setpoint_pa: float, load_mass_kg: float | None = None,
+              commissioning: Any = None) -> None:
         """Start a stroke at the extend command: the supply set-point [Pa absolute] and the
-        payload [kg] (default the rig's) of this stroke."""
+        payload [kg] (default the rig's) of this stroke; ``commissioning``: a commissioning
+        stroke at this operating point (:meth:`set_commissioning`; default the last one
+        given), which the policies that read one need."""
+        if commissioning is not None:
+            self.set_commissioning(commissioning)
+        if self.reads_commissioning and self.commissioning is None:
+            raise ValueError(f"{self.source} reads a commissioning stroke of the rig at its "
+                             f"operating point (extend, cut off on arrival, held 1.5 s): record "
+                             f"one and give it, reset(..., commissioning=RUN) or "
+                             f"set_commissioning(RUN)")
         ps = _number("supply_setpoint_pa", supply_setpoint_pa)
         if not self._pa + 1e4 <= ps <= self._pa + 2e6:
             hint = (" (bar given as Pa?)" if ps < 100 else
@@ -194,6 +239,10 @@ class Controller:
             self._obs[0, n:n + k] = np.clip(self._extra, -OBS_BOUND, OBS_BOUND)
             self._obs[0, n + k:n + self._n_rig] = stroke_events(self._events, self._hist[-1:],
                                                                 self._scales)[0]
+        if self._n_comm:  # zeros for the policies that do not read them (their columns dropped)
+            m = n + self._n_rig
+            self._obs[0, m:m + self._n_comm] = (0.0 if self.commissioning is None else np.clip(
+                self.commissioning, -OBS_BOUND, OBS_BOUND))
         return self._obs
 
     # -- checking samples ----------------------------------------------------------------------

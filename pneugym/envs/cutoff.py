@@ -16,6 +16,8 @@ at ``time_limit_s``.
 **Observation** ``Box(float32)``: ``history`` samples (oldest first) of the seven sensor features
 of :data:`OBSERVATION`, each ``(value - offset) / scale``, then, with ``observe_rig=True``, the
 rig's datasheet values of :data:`RIG_OBSERVATION` (what a user writes in a rig file), then, with
+``observe_commissioning=True`` as well, what one recorded stroke of the rig at the operating
+point shows (:data:`COMMISSIONING_OBSERVATION`, :mod:`pneugym.envs.commissioning`), then, with
 ``observe_params=True``, the privileged features of :data:`PARAM_OBSERVATION`.
 
 **Reward.** The return of an episode equals its objective
@@ -102,6 +104,25 @@ RIG_OBSERVATION: tuple[Feature, ...] = (
     Feature("t_breakaway", "s", 1.0, "0", "time the piston first passed 2 mm"),
     Feature("dp_breakaway", "Pa", PRESSURE_SCALE_PA, "0",
             "driving minus exhaust port pressure when the piston first passed 2 mm"),
+)
+#: The features of the commissioning stroke, in observation order (``value / scale``).
+COMMISSIONING_OBSERVATION: tuple[Feature, ...] = (
+    Feature("comm_stroke_time", "s", 1.0, "0",
+            "commissioning stroke: time from the extend command to the arrival (the "
+            "conventional stroke time at this operating point)"),
+    Feature("comm_motion_time", "s", 1.0, "0",
+            "commissioning stroke: from the breakaway (piston past 2 mm) to the arrival"),
+    Feature("comm_p_drive_arrival", "Pa", PRESSURE_SCALE_PA, "ambient",
+            "commissioning stroke: driving-port pressure over the 10 ms before the arrival"),
+    Feature("comm_p_exhaust_arrival", "Pa", PRESSURE_SCALE_PA, "ambient",
+            "commissioning stroke: exhaust-port pressure over the 10 ms before the arrival "
+            "(the exhaust cushion)"),
+    Feature("comm_dp_motion", "Pa", PRESSURE_SCALE_PA, "0",
+            "commissioning stroke: median driving minus exhaust pressure over the middle half "
+            "of the motion (what it takes to keep moving)"),
+    Feature("comm_hold_decay", "-", 1.0, "0",
+            "commissioning stroke: relative drop of the driving pressure (gauge) over the hold, "
+            "from 0.5 s to 1.5 s after the arrival (leaks, heat exchange)"),
 )
 N_DATASHEET = 4  # the first RIG_OBSERVATION features: the rig file's values
 RISE_PA = 1e4  # gauge pressure [Pa] that marks the valve's opening in the driving port
@@ -249,6 +270,7 @@ class _CutOffCore:
 
     def _configure(self, n: int, preset, conditions, rig, control_period_s, time_limit_s,
                    decision_window_s, reversible, history, observe_params, observe_rig,
+                   observe_commissioning,
                    sensor_lag_s,
                    w_time, w_stall, w_stick, reward_mode) -> None:
         values = {"control_period_s": control_period_s, "time_limit_s": time_limit_s,
@@ -267,7 +289,8 @@ class _CutOffCore:
                 and 1 <= history <= MAX_HISTORY):
             raise ValueError(f"history = {history!r} must be an integer in [1, {MAX_HISTORY}]")
         for name, val in (("reversible", reversible), ("observe_params", observe_params),
-                          ("observe_rig", observe_rig)):
+                          ("observe_rig", observe_rig),
+                          ("observe_commissioning", observe_commissioning)):
             check_flag(name, val)
         if reward_mode not in ("dense", "sparse"):
             raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
@@ -286,6 +309,14 @@ class _CutOffCore:
         self.history = int(history)
         self.observe_params = bool(observe_params)
         self.observe_rig = bool(observe_rig)
+        self.observe_commissioning = bool(observe_commissioning)
+        if self.observe_commissioning and not self.observe_rig:
+            raise ValueError("observe_commissioning=True needs observe_rig=True: the "
+                             "commissioning stroke's features follow the rig's datasheet values")
+        #: the rig features observed: datasheet and stroke events, then the commissioning stroke's
+        self._rig_features: tuple[Feature, ...] = (
+            (RIG_OBSERVATION if self.observe_rig else ())
+            + (COMMISSIONING_OBSERVATION if self.observe_commissioning else ()))
         self.weights = {"w_time": float(w_time), "w_stall": float(w_stall),
                         "w_stick": float(w_stick)}
         self.reward_mode = reward_mode
@@ -310,7 +341,7 @@ class _CutOffCore:
         self._events = np.full((n, 3), np.nan)  # t rise, t breakaway, dp breakaway (observe_rig)
         self._scales = np.array([self.rig.cylinder.stroke_m, VELOCITY_SCALE_M_S,
                                  PRESSURE_SCALE_PA, self.time_limit_s])
-        n_extra = (len(RIG_OBSERVATION) if observe_rig else 0) + (
+        n_extra = len(self._rig_features) + (
             len(PARAM_OBSERVATION) if observe_params else 0)
         self._extra = np.zeros((n, n_extra))
         nobs = self.history * EP.NF + n_extra
@@ -327,8 +358,7 @@ class _CutOffCore:
         """Name of every observation element (``name[-k]`` = k samples ago)."""
         names = [f"{f.name}[{k - self.history + 1}]" if self.history > 1 else f.name
                  for k in range(self.history) for f in OBSERVATION]
-        if self.observe_rig:
-            names += [f.name for f in RIG_OBSERVATION]
+        names += [f.name for f in self._rig_features]
         if self.observe_params:
             names += [f.name for f in PARAM_OBSERVATION]
         return names
@@ -342,7 +372,7 @@ class _CutOffCore:
         params = [{"name": f.name, "unit": f.unit, "scale": f.scale, "description": f.description}
                   for f in PARAM_OBSERVATION] if self.observe_params else []
         rig = [{"name": f.name, "unit": f.unit, "scale": f.scale, "description": f.description}
-               for f in RIG_OBSERVATION] if self.observe_rig else []
+               for f in self._rig_features]
         return {"history": self.history, "features": feats, "rig_features": rig,
                 "param_features": params,
                 "size": int(self._obs.shape[1]), "control_period_s": self.control_period_s}
@@ -365,11 +395,11 @@ class _CutOffCore:
         self._cond_values[i] = _cond_values(cond)
         self._noise_std[i] = (cond.position_noise_m, cond.pressure_noise_pa,
                               cond.pressure_noise_pa)
-        k = 0
-        if self.observe_rig:
-            self._extra[i, :N_DATASHEET] = datasheet
+        k = len(self._rig_features)
+        if k:
+            self._extra[i, :N_DATASHEET] = datasheet[:N_DATASHEET]
+            self._extra[i, len(RIG_OBSERVATION):k] = datasheet[N_DATASHEET:]
             self._events[i] = np.nan
-            k = len(RIG_OBSERVATION)
         if self.observe_params:
             self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
                               float(self.P[i, L.P_DELAY]) / 0.4)
@@ -388,6 +418,10 @@ class _CutOffCore:
         e[EP.E_T_CONV], e[EP.E_E_CONV] = t_conv, e_conv
         e[EP.E_T_CUT] = -1.0
         datasheet = datasheet_features(params) if self.observe_rig else None
+        if self.observe_commissioning:  # the rig at this operating point, as commissioned
+            from .commissioning import condition_features
+
+            datasheet = (*datasheet, *condition_features(cond, self.rig))
         return P, y0, d0, e, datasheet
 
     def _settings(self, e: np.ndarray) -> None:
@@ -508,7 +542,7 @@ class _CutOffCore:
 
 _DEFAULTS = dict(preset=None, conditions=None, rig=None, control_period_s=0.005,
                  time_limit_s=4.0, decision_window_s=0.02, reversible=False, history=1,
-                 observe_params=False, observe_rig=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
+                 observe_params=False, observe_rig=False, observe_commissioning=False, sensor_lag_s=0.0, w_time=0.3, w_stall=2.0, w_stick=0.5,
                  reward_mode="dense")
 
 
@@ -523,7 +557,9 @@ class CutOffEnv(_CutOffCore, gym.Env):
     path of a rig file, :meth:`RigParams.load`; default the thesis rig); ``control_period_s`` (5 ms); ``time_limit_s``
     (4 s); ``decision_window_s`` after arrival (20 ms); ``reversible``; ``history`` (samples per
     observation); ``observe_params``; ``observe_rig`` (the rig file's datasheet values,
-    :data:`RIG_OBSERVATION`); ``sensor_lag_s`` (transducer lag); the objective weights
+    :data:`RIG_OBSERVATION`); ``observe_commissioning`` (with ``observe_rig``: the features of
+    one recorded stroke of the rig at the operating point, cut off on arrival and held,
+    :data:`COMMISSIONING_OBSERVATION`); ``sensor_lag_s`` (transducer lag); the objective weights
     ``w_time`` (0.3), ``w_stall`` (2), ``w_stick`` (0.5); ``reward_mode`` (``"dense"``/``"sparse"``);
     ``render_mode`` (``"rgb_array"``).
     """
