@@ -87,11 +87,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
-    probe = CutOffVectorEnv(num_envs=1, observe_rig=True)
+    cfg = evaluation_env_config({})
+    probe = CutOffVectorEnv(num_envs=1, **cfg)
     rig = probe.rig
     budget = budget_s(float(probe.control_period_s), args.reserve_ms * 1e-3)
     conds = [c for _, c in suite_episodes("nominal", args.episodes, args.seed)]
-    cfg = evaluation_env_config({})
     result: dict[str, Any] = {
         "budget": {"control_period_s": float(probe.control_period_s),
                    "reserve_s": args.reserve_ms * 1e-3, "budget_s": budget,
@@ -246,7 +246,7 @@ def _episode_observations(probe, conds, seed: int) -> list:
 
     out = []
     for k, c in enumerate(conds):
-        env = CutOffVectorEnv(num_envs=1, autoreset=False, observe_rig=True)
+        env = CutOffVectorEnv(num_envs=1, autoreset=False, **probe.config)
         obs, _ = env.reset(seed=seed + k, options={"conditions": [c]})
         seq = []
         while True:
@@ -310,8 +310,10 @@ def time_controller(path: Path, backends: Sequence[str], policy, conds, seed: in
     import numpy as np
 
     try:
+        from agents.evaluation.specs import evaluation_env_config
         from pneugym.deploy import Controller
         from pneugym.deploy.check import environment_trace
+        from pneugym.envs.commissioning import condition_features
     except ImportError as exc:
         return {"error": f"pneugym.deploy.Controller unavailable: {exc}"}
     try:
@@ -319,15 +321,16 @@ def time_controller(path: Path, backends: Sequence[str], policy, conds, seed: in
             warnings.simplefilter("ignore", UserWarning)  # a rig other than the trained one
             ctls = {b: Controller.load(path, backend=b) for b in backends}
         some = conds[:: max(1, len(conds) // 4)]
-        traces = environment_trace(policy, some, seed, {"observe_rig": True})
+        traces = environment_trace(policy, some, seed, evaluation_env_config({}))
         pa = ctls[backends[0]].rig.gas.ambient_pressure_pa
         times: dict[str, list] = {b: [] for b in backends}
         commands: dict[str, list] = {b: [] for b in backends}
         rounds = 0
         while rounds == 0 or len(times[backends[0]]) < calls:
             for c, tr in zip(some, traces):
-                for ctl in ctls.values():
-                    ctl.reset(c.supply_pressure_gauge_pa + pa, c.load_mass_kg)
+                for ctl in ctls.values():  # (told the stroke the environment observed)
+                    ctl.reset(c.supply_pressure_gauge_pa + pa, c.load_mass_kg,
+                              commissioning=condition_features(c, ctl.rig))
                 for j in range(tr["t"].size):
                     for b, ctl in ctls.items():
                         t0 = time.perf_counter()
