@@ -53,9 +53,9 @@ class Controller:
 
     A policy that reads a commissioning stroke needs one recorded at the operating point it runs
     at (extend, cut off on arrival, held 1.5 s after it): give it with
-    :meth:`set_commissioning` or to :meth:`reset`. Call :meth:`reset` at every extend command, then :meth:`step` once per control period with
-    the newest samples; it returns the valve command (0 keep the supply, 1 cut it off), latched
-    once cut. Use :meth:`load` to build one from a policy's name or a trained model.
+    :meth:`set_commissioning` or to :meth:`reset`. Call :meth:`reset` at every extend command,
+    then :meth:`step` once per control period with the newest samples; it returns the valve
+    command (0 keep the supply, 1 cut it off), latched once cut. Use :meth:`load` to build one from a policy's name or a trained model.
     """
 
     def __init__(self, policy: Any, env: Any, source: str = "the policy",
