@@ -15,7 +15,6 @@ from pneugym.envs import Conditions
 from pneugym.envs.commissioning import (condition_features, run_features, scaled,
                                         simulated_features, trace_features)
 from pneugym.envs.cutoff import COMMISSIONING_OBSERVATION, CutOffEnv, CutOffVectorEnv
-from pneugym.envs.family import apply_changes
 from pneugym.params import RigParams
 from training_helpers import small
 
@@ -117,8 +116,7 @@ def test_models_that_read_no_stroke_ignore_it():
     """Baselines under a controller built to observe the stroke run without one."""
     from agents import make_policy
 
-    env = CutOffVectorEnv(num_envs=1, observe_rig=True, observe_commissioning=True,
-                          rig=apply_changes(RigParams(), ()))
+    env = CutOffVectorEnv(num_envs=1, observe_rig=True, observe_commissioning=True)
     ctl = Controller(make_policy("gaslaw", env), env)
     assert not ctl.reads_commissioning
     ctl.reset(2.5e5 + PA, 10.0)

@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 
 from ..params import RigParams
-from .cutoff import COMMISSIONING_OBSERVATION
+from .cutoff import BREAKAWAY_M, COMMISSIONING_OBSERVATION
 
 ARRIVAL_TOLERANCE_M = 5e-4  # the piston counts as arrived this close to the end of stroke
-BREAKAWAY_M = 2e-3  # position [m] that marks the breakaway (as the stroke's own events)
 HOLD_START_S, HOLD_END_S = 0.5, 1.5  # the hold window [s after the arrival]
 WINDOW_S = 0.01  # pressures are averaged over this much [s] (the noise of a single sample)
 
