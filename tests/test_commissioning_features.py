@@ -121,3 +121,68 @@ def test_models_that_read_no_stroke_ignore_it():
     assert not ctl.reads_commissioning
     ctl.reset(2.5e5 + PA, 10.0)
     assert ctl.step(0.0, 0.0, PA, 2.5e5 + PA) == 0
+
+
+def test_a_told_model_operates_on_the_stroke_of_the_lifes_start(told_run, tmp_path,
+                                                                 monkeypatch):
+    """`pneugym operate` runs a model that reads the stroke, frozen and adapting, and tells it
+    the stroke the rig made at the start of its life: a leak that opens later changes what
+    the environment would simulate, not what the controller observes."""
+    from agents.oracle import TimedCutPolicy
+    from pneugym.operation import run as R
+    from pneugym.operation.scenarios import Scenario
+
+    sc = Scenario("leak", drift={"leak_drive_area_m2": [(0, 0.0), (9, 0.0), (10, 6e-7)]})
+    late, start = sc.conditions(15, 0), sc.conditions(0, 0)
+    base = RigParams()
+    told = R.commissioned(sc, 0, late, base)
+    np.testing.assert_array_equal(told, condition_features(start, base))
+    assert abs(condition_features(late, base)[5] - told[5]) > 0.01  # the leak shows in the hold
+    seen = []
+    act = R._Stepper.act
+
+    def spy(self, obs):  # the controller's observations (not the references' timed cuts)
+        if not isinstance(self.policy, TimedCutPolicy):
+            seen.append(obs[:, -len(told):].copy())  # (the commissioning features end the row)
+        return act(self, obs)
+
+    monkeypatch.setattr(R._Stepper, "act", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (trained on a family, run on the thesis rig)
+        for kind in ("esac", "esac-adaptive"):
+            R.operate(sc, f"{kind}={told_run}", strokes=20, db=tmp_path / "ops.duckdb",
+                      block=10, progress=False)
+    assert len(seen) > 40
+    assert R.ENV_CONFIG["observe_commissioning"]
+    for obs in seen:
+        np.testing.assert_array_equal(obs, np.broadcast_to(told.astype(obs.dtype), obs.shape))
+
+
+def test_reset_tells_an_episode_a_stroke():
+    """``reset(options={"commissioning": ...})``: the features, a measured run or ``None`` per
+    sub-environment replace the simulated stroke for the episodes that reset starts; bad values
+    and environments that observe no stroke are refused."""
+    rig = RigParams()
+    sim = simulated_features(rig)
+    env = CutOffEnv(observe_rig=True, observe_commissioning=True)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs[-6:], sim.astype(np.float32))
+    obs, _ = env.reset(seed=0, options={"commissioning": 1.5 * sim})
+    np.testing.assert_array_equal(obs[-6:], (1.5 * sim).astype(np.float32))
+    obs, _ = env.reset(seed=0)  # the next episode observes its own stroke again
+    np.testing.assert_array_equal(obs[-6:], sim.astype(np.float32))
+    run = simulate_run(rig, cut_on_arrival=True, t_end=3.0, noise=None)
+    obs, _ = env.reset(seed=0, options={"commissioning": run})
+    np.testing.assert_allclose(obs[-6:], run_features(run, rig.cylinder.stroke_m), rtol=1e-6)
+    venv = CutOffVectorEnv(num_envs=2, observe_rig=True, observe_commissioning=True)
+    obs, _ = venv.reset(seed=0, options={"commissioning": [None, 2.0 * sim]})
+    np.testing.assert_array_equal(obs[:, -6:], np.stack([sim, 2.0 * sim]).astype(np.float32))
+    for bad in ([1.0, 2.0], [np.nan] * 6, "not a stroke"):
+        with pytest.raises(ValueError):
+            env.reset(options={"commissioning": bad})
+    with pytest.raises(ValueError, match="one commissioning stroke .* per environment"):
+        venv.reset(options={"commissioning": [sim]})
+    with pytest.raises(ValueError, match="does not observe a commissioning stroke"):
+        CutOffEnv(observe_rig=True).reset(options={"commissioning": sim})
+    with pytest.raises(ValueError, match="does not observe a commissioning stroke"):
+        CutOffVectorEnv(num_envs=1).reset(options={"commissioning": [sim]})

@@ -35,7 +35,9 @@ evaluated on the current state every step (it telescopes to ``J`` exactly); ``"s
 
 **Conditions** (load, supply, friction and valve-delay scales, a supply-pressure dip, sensor
 noise) are drawn at every reset from a :class:`~pneugym.envs.conditions.ConditionSpace` with
-``self.np_random``; ``reset(options={"conditions": Conditions(...)})`` forces them.
+``self.np_random``; ``reset(options={"conditions": Conditions(...)})`` forces them, and
+``reset(options={"commissioning": ...})`` (``observe_commissioning``) tells an episode a
+commissioning stroke (:func:`check_commissioning`) instead of the simulated one.
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ import math
 import numbers
 import operator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 import gymnasium as gym
@@ -170,7 +173,7 @@ def stroke_events(events: np.ndarray, newest: np.ndarray, scales: np.ndarray) ->
     return np.clip(vals, -OBS_BOUND, OBS_BOUND)
 
 
-RESET_OPTIONS = ("conditions",)
+RESET_OPTIONS = ("conditions", "commissioning")
 MAX_HISTORY = 1000  # samples per observation (5 s at 5 ms)
 _MAX_OPTION_HINT = {"control_period_s": (1.0, "ms given as s? (5 ms = 0.005 s)"),
                     "decision_window_s": (10.0, "ms given as s? (20 ms = 0.02 s)"),
@@ -228,6 +231,32 @@ def check_options(options: Any) -> Mapping[str, Any]:
             raise ValueError(f"unknown reset option {k!r}{did_you_mean(k, RESET_OPTIONS)}; "
                              f"known: {list(RESET_OPTIONS)}")
     return options
+
+
+def check_commissioning(value: Any, observed: bool, stroke_m: float,
+                        what: str = "options['commissioning']") -> np.ndarray:
+    """A ``commissioning`` reset option as the scaled :data:`COMMISSIONING_OBSERVATION`: the
+    features themselves (6 numbers, ``value / scale``), a measured commissioning stroke
+    (:class:`~pneugym.data.MeasuredRun`) or the path of its JSON."""
+    if not observed:
+        raise ValueError(f"{what}: this environment does not observe a commissioning stroke "
+                         f"(build it with observe_rig=True, observe_commissioning=True)")
+    from ..data import MeasuredRun
+
+    if isinstance(value, (str, Path, MeasuredRun)):
+        from .commissioning import run_features
+
+        return run_features(value, stroke_m)
+    try:
+        f = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        f = np.zeros(0)
+    n = len(COMMISSIONING_OBSERVATION)
+    if f.shape != (n,) or not np.all(np.isfinite(f)):
+        raise ValueError(f"{what} needs the {n} finite scaled features "
+                         f"{[x.name for x in COMMISSIONING_OBSERVATION]}, a MeasuredRun or the "
+                         f"path of one; got {value!r:.200}")
+    return f
 
 
 @functools.lru_cache(maxsize=4096)
@@ -404,6 +433,12 @@ class _CutOffCore:
             self._extra[i, k:] = (cond.load_mass_kg / 30.0, cond.friction_scale,
                               float(self.P[i, L.P_DELAY]) / 0.4)
         self._status[i] = 0
+
+    def _tell_commissioning(self, i: int, features: Any) -> None:
+        """Episode ``i`` observes ``features`` (:func:`check_commissioning`) as its
+        commissioning stroke instead of the one simulated from its conditions."""
+        k = len(self._rig_features)
+        self._extra[i, k - len(COMMISSIONING_OBSERVATION):k] = features
 
     def _first_start(self, cond: Conditions) -> tuple:
         """The rows of ``P, Y, D, E`` that start an episode under ``cond`` (supply dip set, extend
@@ -596,6 +631,10 @@ class CutOffEnv(_CutOffCore, gym.Env):
         else:
             cond = as_conditions(cond, "options['conditions']")
         self._start(0, cond)
+        told = check_options(options).get("commissioning")
+        if told is not None:
+            self._tell_commissioning(0, check_commissioning(
+                told, self.observe_commissioning, float(self.P[0, L.P_STROKE])))
         self._observe(self._all, self.np_random, fresh=True)
         self._trace = []
         self._record()
@@ -697,10 +736,22 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
                                  f"None) per environment ({n}); got {conds!r:.200}")
             conds = [None if c is None else as_conditions(c, f"options['conditions'][{i}]")
                      for i, c in enumerate(conds)]
+        told = check_options(options).get("commissioning")
+        if told is not None:
+            if isinstance(told, (str, Mapping)) or not hasattr(told, "__len__") \
+                    or len(told) != n:
+                raise ValueError(f"options['commissioning'] needs a list of one commissioning "
+                                 f"stroke (or None) per environment ({n}); got {told!r:.200}")
+            if not self.observe_commissioning:
+                check_commissioning(None, False, 0.0)
         self._rngs = [seeding.np_random(s)[0] for s in seeds]
         for i in range(n):
             c = conds[i] if conds is not None else None
             self._start(i, c if c is not None else self.space.sample(self._rngs[i], self.rig))
+            if told is not None and told[i] is not None:
+                self._tell_commissioning(i, check_commissioning(
+                    told[i], True, float(self.P[i, L.P_STROKE]),
+                    f"options['commissioning'][{i}]"))
         self._steps[:] = 0
         self._idle = np.zeros(n, dtype=bool)
         self._observe(self._all, self.np_random, fresh=True)

@@ -22,9 +22,10 @@ import numpy as np
 from .record import Record
 from .scenarios import Scenario, scenario as get_scenario
 
-#: the operating environment's options (as every evaluation: the rig's datasheet values observed,
-#: single samples; learned policies stack their own history)
-ENV_CONFIG: dict[str, Any] = {"observe_rig": True}
+#: the operating environment's options (as every evaluation: the rig's datasheet values and
+#: its commissioning stroke observed, single samples; learned policies stack their own history
+#: and drop the features they do not read)
+ENV_CONFIG: dict[str, Any] = {"observe_rig": True, "observe_commissioning": True}
 
 
 def run_id_of(scenario: str, seed: int, controller: str) -> str:
@@ -108,15 +109,31 @@ def known(c: Any) -> Any:
                       load_mass_kg=c.load_mass_kg)
 
 
+def commissioned(sc: Scenario, seed: int, cond: Any, base: Any) -> np.ndarray:
+    """The commissioning stroke a controller is told under ``cond``: the one the life's rig made
+    at its start (stroke 0's leaks; nominal friction and valve delay) at ``cond``'s operating
+    point (supply set-point, payload), recorded once per operating point and then kept while
+    the rig drifts (:func:`pneugym.envs.commissioning.condition_features`)."""
+    from pneugym.envs import Conditions
+    from pneugym.envs.commissioning import condition_features
+
+    start = sc.conditions(0, seed)
+    return condition_features(Conditions(supply_pressure_gauge_pa=cond.supply_pressure_gauge_pa,
+                                         load_mass_kg=cond.load_mass_kg,
+                                         rig_changes=start.rig_changes), base)
+
+
 def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, inputs: bool,
-              lags: tuple[int, ...] = (0,), dwell_s: float = 0.0, privileged: bool = False
+              lags: tuple[int, ...] = (0,), dwell_s: float = 0.0, privileged: bool = False,
+              commissioning: list | None = None
               ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], list]:
     """One block: every stroke of ``conds`` under ``policy`` (rows ``keep`` never cut), each
     followed by a rest of ``dwell_s`` at the end (:func:`dwell`). Returns the final figures, the
     sensor traces (``row``, ``t``, ``x``, ``p_drive``, ``p_exhaust`` absolute, ``valve``) and
     each row's decision inputs (float32 bytes, or None). The policy is told each stroke's
     :func:`known` conditions, the true ones only if ``privileged`` (the oracle, the
-    references)."""
+    references), and ``commissioning`` (one stroke's features per row, :func:`commissioned`)
+    when the environment observes it (else the stroke of each row's own conditions)."""
     from agents.base import ObservationReader, collect_finals
     from pneugym.units import free_air_nl
 
@@ -124,7 +141,10 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     read = ObservationReader(env.observation_layout())
     pa = float(env.rig.gas.ambient_pressure_pa)
     step = _Stepper(policy, keep, inputs, lags)
-    obs, _ = env.reset(seed=seed, options={"conditions": list(conds)})
+    options: dict[str, Any] = {"conditions": list(conds)}
+    if commissioning is not None:
+        options["commissioning"] = list(commissioning)
+    obs, _ = env.reset(seed=seed, options=options)
     policy.begin_episodes(list(conds) if privileged else [known(c) for c in conds])
     done = np.zeros(n, dtype=bool)
     out: dict[str, list] = {}
@@ -251,10 +271,12 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
             if env is None or env.num_envs != ks.size:
                 env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **ENV_CONFIG)
             policy, flags = ctrl.plan(ks)
+            told = [commissioned(sc, seed, c, env.rig) for c in conds]
             fig, traces, dec = run_block(env, policy, conds, flags["reference"],
                                          seed=int(np.random.default_rng([seed, k0]).integers(
                                              2**31)), inputs=ctrl.needs_inputs, lags=LAGS,
-                                         dwell_s=float(dwell_s), privileged=ctrl.privileged)
+                                         dwell_s=float(dwell_s), privileged=ctrl.privileged,
+                                         commissioning=told)
             rows = _stroke_rows(sc, ks, fig, flags, dec, ctrl.version, conds)
             ctrl.update({k: _measured(rows[k]) for k in MEASURED})
             traces["stroke"] = ks[traces.pop("row")]
