@@ -26,6 +26,7 @@ block's measured outcome, :meth:`Frozen.adapt` at the start of each block (with 
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import tempfile
@@ -262,7 +263,10 @@ class AdaptiveESAC(Frozen):
     from ``explore_range`` instead of the tuned one, so that the record shows the outcome of
     other cut times too. With ``tune_demand`` the regular strokes' time demand follows the
     measured outcome of the last ``tune_window`` strokes (:class:`DemandTuner` on the explored
-    range, in steps of a sixth of it; ``tune_z`` standard errors to move)."""
+    range, in steps of a sixth of it; ``tune_z`` standard errors to move). A model that stops
+    cutting records nothing to learn from, so when the running model is not the shipped one and
+    none of its last ``rollback_after`` strokes (reference strokes aside) cut, the shipped model
+    runs again (a *rollback*, recorded as a model of kind ``rollback``; 0: never)."""
 
     needs_inputs = True
     reference_every = 100
@@ -271,7 +275,7 @@ class AdaptiveESAC(Frozen):
                  window: int = 1000, holdout: float = 0.25, epochs: int = 30, lr: float = 5e-4,
                  min_gain: float = 0.02, explore: float = 0.1,
                  explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
-                 tune_window: int = 250, tune_z: float = 2.0):
+                 tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50):
         super().__init__(spec, env, seed)
         from .esac.policy import ESACPolicy
 
@@ -280,6 +284,13 @@ class AdaptiveESAC(Frozen):
                              f"models (give esac=runs/esac)")
         if not (1 <= adapt_every and 0.0 < holdout < 1.0 and 0.0 <= explore < 1.0):
             raise ValueError("adapt_every >= 1, holdout in (0, 1), explore in [0, 1)")
+        if not (isinstance(rollback_after, int) and rollback_after >= 0):
+            raise ValueError(f"rollback_after = {rollback_after!r} must be an integer >= 0 "
+                             f"(strokes; 0: never roll back)")
+        self.rollback_after = rollback_after
+        self.shipped = copy.deepcopy(self.policy.predictor.net)  # what a rollback runs again
+        self.deployed_at = 0  # the stroke the running model took over at
+        self.shipped_runs = True  # the running model is the shipped one (none fine-tuned)
         self.adapt_every, self.window, self.holdout = int(adapt_every), int(window), holdout
         self.epochs, self.lr, self.min_gain = int(epochs), float(lr), float(min_gain)
         self.explore, self.explore_range = float(explore), tuple(explore_range)
@@ -311,7 +322,7 @@ class AdaptiveESAC(Frozen):
                 "min_gain": self.min_gain, "explore": self.explore,
                 "explore_range": list(self.explore_range), "reference_every": self.reference_every,
                 "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
-                "tune_z": self.tuner.z}
+                "tune_z": self.tuner.z, "rollback_after": self.rollback_after}
 
     def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
         from .esac.policy import ESACPolicy
@@ -374,8 +385,33 @@ class AdaptiveESAC(Frozen):
         x, y, mask, rows = samples(data, pred.stroke_m, pred.delay_input)
         return x, y, mask, rec["stroke"][use][rows]
 
+    def _rollback(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
+        """The shipped model again if the running one, a fine-tuned one, has not cut on any of
+        its last :attr:`rollback_after` strokes (reference strokes aside)."""
+        n = self.rollback_after
+        if not n or self.shipped_runs or stroke - self.deployed_at < n:
+            return []
+        rec = record.strokes(run_id, self.deployed_at, stroke - 1,
+                             columns=("stroke", "reference", "cutoff_time_s"))
+        cut = np.array([v is not None and not math.isnan(v) for v in rec["cutoff_time_s"]])
+        own = ~rec["reference"].astype(bool)
+        if own.sum() < n or cut[own][-n:].any():
+            return []
+        self.generation += 1
+        version = f"{self.name}-v{self.generation}"
+        self.policy.predictor.net = self.shipped
+        self.shipped = copy.deepcopy(self.shipped)  # (kept apart from the running net)
+        self.model_version, self.deployed_at, self.shipped_runs = version, stroke, True
+        self.version = self._version()
+        return [{"version": version, "stroke": stroke, "kind": "rollback", "deployed": True,
+                 "score_new": None, "score_running": None,
+                 "detail": {"to": f"{self.name}-v0", "reason": f"no cut in the last {n} strokes"},
+                 "blob": _net_bytes(self.policy.predictor.net, self.policy)}]
 
     def adapt(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
+        back = self._rollback(record, run_id, stroke)
+        if back:
+            return back
         if stroke - self.last_adapt < self.adapt_every:
             return []
         from .esac.model import fit, loss
@@ -402,7 +438,7 @@ class AdaptiveESAC(Frozen):
         version = f"{self.name}-v{self.generation}"
         if deploy:
             self.policy.predictor.net = cand
-            self.model_version = version
+            self.model_version, self.deployed_at, self.shipped_runs = version, stroke, False
             self.version = self._version()
         return [{"version": version, "stroke": stroke, "kind": "esac", "deployed": bool(deploy),
                  "score_new": s_new, "score_running": s_old,
@@ -414,16 +450,19 @@ class AdaptiveESAC(Frozen):
         return json.dumps({"version": self.version, "model_version": self.model_version,
                            "generation": self.generation, "last_adapt": self.last_adapt,
                            "demand": self.demand, "conv": list(self.conv),
-                           "tuner": self.tuner.state()}).encode()
+                           "tuner": self.tuner.state(), "deployed_at": self.deployed_at,
+                           "shipped_runs": self.shipped_runs}).encode()
 
     def restore(self, state: bytes, record: Any, run_id: str) -> None:
         s = json.loads(state)
         self.generation, self.last_adapt = int(s["generation"]), int(s["last_adapt"])
         self.model_version, self.demand = s["model_version"], float(s["demand"])
+        self.deployed_at = int(s.get("deployed_at", 0))
+        self.shipped_runs = bool(s.get("shipped_runs", self.model_version == f"{self.name}-v0"))
         self.conv = tuple(float(v) for v in s["conv"])
         self.tuner.restore(s["tuner"])
         self.version = self._version()
-        if self.model_version != f"{self.name}-v0":
+        if not self.shipped_runs:  # (a rollback runs the shipped model, loaded already)
             row = record.con.execute("SELECT blob FROM models WHERE run_id = ? AND version = ?",
                                      [run_id, self.model_version]).fetchone()
             if row is None:

@@ -623,3 +623,67 @@ def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, 
     assert sc["mean_loss_slip_robust_against_every_step"] >= 0.0
     with pytest.raises(SystemExit):
         bench.main(["--db", str(db), "--slip", "0"])
+
+
+class _Record:
+    """The part of :class:`Record` the rollback reads: strokes 0-29, a reference at 0, cuts on
+    the strokes in ``cuts``."""
+
+    def __init__(self, cuts):
+        self.cuts = set(cuts)
+
+    def strokes(self, run_id, first=0, last=None, columns=()):
+        k = np.arange(first, min(29, last) + 1)
+        return {"stroke": k, "reference": k == 0,
+                "cutoff_time_s": np.array([0.5 if i in self.cuts else None for i in k],
+                                          dtype=object)}
+
+
+def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
+    """A fine-tuned model that has not cut on its last ``rollback_after`` strokes gives way to
+    the shipped one (recorded as a rollback, with its network); one that cut lately, the
+    shipped model itself and ``rollback_after=0`` never do."""
+    import torch
+
+    from agents import esac
+    from agents.adaptive import AdaptiveESAC, _net_from_bytes
+
+    data = esac.generate_rollouts(96, seed=5, history=2, preset="thesis-2.5bar", batch=96,
+                                  progress=False)
+    stroke = CutOffVectorEnv(num_envs=1).rig.cylinder.stroke_m
+    x, y, mask, ep = esac.samples(data, stroke, delay_input=False)
+    net, _ = esac.fit(x, y, mask, hidden=(8,), epochs=2, groups=ep, progress=False)
+    model = tmp_path / "esac.pt"
+    esac.save(model, net, {"layout": CutOffVectorEnv(num_envs=1, history=2).observation_layout(),
+                           "n_in": x.shape[1], "hidden": [8], "delay_input": False,
+                           "lookahead_s": [], "rule": {"margin": 0.6}})
+    env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+
+    def fine_tuned(**kw):
+        c = AdaptiveESAC(f"esac-adaptive={model}", env, **kw)
+        c.policy.predictor.net = esac.fit(x, y, mask, hidden=(8,), epochs=1, seed=9,
+                                          groups=ep, progress=False, init=net)[0]
+        c.generation, c.model_version, c.shipped_runs = 2, f"{c.name}-v2", False
+        return c
+
+    def same(a, b):
+        return all(torch.equal(p, q) for p, q in zip(a.state_dict().values(),
+                                                     b.state_dict().values()))
+
+    c = fine_tuned(rollback_after=10)
+    assert not same(c.policy.predictor.net, net)
+    assert c.adapt(_Record(range(1, 25)), "x", 30) == []  # a cut among the last 10
+    (row,) = c.adapt(_Record(range(1, 15)), "x", 30)
+    assert row["kind"] == "rollback" and row["deployed"] and row["version"] == f"{c.name}-v3"
+    assert same(c.policy.predictor.net, net) and same(_net_from_bytes(row["blob"]), net)
+    assert c.model_version == f"{c.name}-v3" and json.loads(c.state())["deployed_at"] == 30
+    assert c.adapt(_Record(()), "x", 35) == []  # (not yet 10 strokes of the shipped model)
+    assert c.adapt(_Record(()), "x", 45) == []  # (the shipped model is not rolled back)
+    c2 = AdaptiveESAC(f"esac-adaptive={model}", env, rollback_after=10)
+    c2.restore(c.state(), None, "x")  # (no record needed: the running model is the shipped)
+    assert c2.shipped_runs and c2.adapt(_Record(()), "x", 60) == []
+    shipped = AdaptiveESAC(f"esac-adaptive={model}", env, rollback_after=10)
+    assert shipped.adapt(_Record(()), "x", 30) == []
+    assert fine_tuned(rollback_after=0).adapt(_Record(()), "x", 30) == []
+    with pytest.raises(ValueError, match="rollback_after"):
+        AdaptiveESAC(f"esac-adaptive={model}", env, rollback_after=-1)
