@@ -500,11 +500,15 @@ def _hidden(net: Any) -> list[int]:
     return [m.out_features for m in net.body if isinstance(m, torch.nn.Linear)][:-1]
 
 
-def make_controller(spec: str, env: Any, seed: int = 0) -> Frozen:
+def make_controller(spec: str, env: Any, seed: int = 0, **options: Any) -> Frozen:
     """An operating controller from its spec: ``NAME`` or ``NAME=PATH`` (frozen),
-    ``gaslaw-adaptive``, or ``esac-adaptive=PATH`` (an ESAC run or model)."""
+    ``gaslaw-adaptive``, or ``esac-adaptive=PATH`` (an ESAC run or model); ``options``: keyword
+    arguments of the adaptive controller (e.g. ``rollback_after=0``)."""
+    if spec.startswith("esac-adaptive="):
+        return AdaptiveESAC(spec, env, seed, **options)
+    if options:
+        raise ValueError(f"controller options {sorted(options)} are for esac-adaptive=PATH, "
+                         f"not {spec!r}")
     if spec == "gaslaw-adaptive":
         return AdaptiveGasLaw(env, seed)
-    if spec.startswith("esac-adaptive="):
-        return AdaptiveESAC(spec, env, seed)
     return Frozen(spec, env, seed)

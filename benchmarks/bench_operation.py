@@ -38,6 +38,9 @@ def main() -> None:
     p.add_argument("--monitor", default="healthy:500,wear:500,shift:500,leak-onset:250,"
                                         "aging:500,load-change:500",
                    help="SCENARIO:EVERY pairs: condition monitoring of the frozen Gas-Law run")
+    p.add_argument("--rollback-after", type=int, default=None,
+                   help="esac-adaptive: strokes without a cut before a fine-tuned model gives "
+                        "way to the shipped one (default: the controller's, 50; 0: never)")
     args = p.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -45,7 +48,9 @@ def main() -> None:
     ctrls = [c.replace("RUNS", args.runs) for c in args.controllers.split(",")]
     for sc in args.scenarios.split(","):
         for c in ctrls:
-            operate(sc, c, strokes=args.strokes, db=db, seed=args.seed)
+            opts = ({"rollback_after": args.rollback_after} if args.rollback_after is not None
+                    and c.startswith("esac-adaptive=") else None)
+            operate(sc, c, strokes=args.strokes, db=db, seed=args.seed, options=opts)
     from pneugym.operation.monitor import alarm, monitor
 
     for item in filter(None, args.monitor.split(",")):

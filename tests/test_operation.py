@@ -687,3 +687,7 @@ def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
     assert fine_tuned(rollback_after=0).adapt(_Record(()), "x", 30) == []
     with pytest.raises(ValueError, match="rollback_after"):
         AdaptiveESAC(f"esac-adaptive={model}", env, rollback_after=-1)
+    assert make_controller(f"esac-adaptive={model}", env, rollback_after=0).rollback_after == 0
+    assert make_controller(f"esac-adaptive={model}", env).config()["rollback_after"] == 50
+    with pytest.raises(ValueError, match="are for esac-adaptive"):
+        make_controller("gaslaw", env, rollback_after=0)

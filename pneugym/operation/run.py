@@ -220,13 +220,16 @@ DWELL_S = 0.4
 
 def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
             db: str | Path = "ops.duckdb", seed: int = 0, block: int = 25,
-            progress: bool = True, dwell_s: float = DWELL_S) -> str:
+            progress: bool = True, dwell_s: float = DWELL_S,
+            options: dict[str, Any] | None = None) -> str:
     """Run ``strokes`` strokes of ``scenario`` under ``controller`` (a spec of
     :func:`agents.adaptive.make_controller`: ``gaslaw``, ``esac=runs/esac``,
     ``gaslaw-adaptive``, ``esac-adaptive=runs/esac``, ...), recording every stroke in the DuckDB
     file ``db``. A run already in ``db`` with the same configuration resumes from its
     checkpoint (and returns at once if finished). Each stroke's record ends with a rest of
-    ``dwell_s`` at the stroke end (the valve held). Returns the run's id."""
+    ``dwell_s`` at the stroke end (the valve held). ``options``: keyword arguments of an
+    adaptive ESAC controller (e.g. ``{"rollback_after": 0}``), recorded with its configuration.
+    Returns the run's id."""
     from tqdm import tqdm
 
     from agents.adaptive import MEASURED, make_controller
@@ -243,7 +246,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     if not (isinstance(dwell_s, (int, float)) and 0.0 <= dwell_s <= 10.0):
         raise ValueError(f"dwell_s = {dwell_s!r} must be in [0, 10] s")
     probe = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
-    ctrl = make_controller(controller, probe, seed)
+    ctrl = make_controller(controller, probe, seed, **dict(options or {}))
     run_id = run_id_of(sc.name, seed, controller)
     config = {"scenario": sc.to_dict(), "seed": seed, "block": block, "env": ENV_CONFIG,
               "dwell_s": float(dwell_s), "controller": ctrl.config()}
