@@ -253,6 +253,24 @@ def test_report_tables_plots_and_recovery(gaslaw_life, tmp_path):
     assert s["per_hour"][0]["strokes"] == 60  # 600 strokes per hour
 
 
+def test_report_names_rollbacks(gaslaw_life, tmp_path):
+    """A rollback in the record's models (written here by hand) is listed in the report."""
+    import shutil
+
+    db, _, ids = gaslaw_life
+    copy = tmp_path / "ops.duckdb"
+    shutil.copy(db, copy)
+    with Record(copy) as rec:
+        rec.con.execute("INSERT INTO models VALUES (?, 'v3', 40, 'rollback', true, NULL, NULL, "
+                        "'{}', NULL)", [ids["gaslaw-adaptive"]])
+    res = write_report(copy, tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "Rolled back to the shipped model" in md and "- gaslaw-adaptive: at stroke 40" in md
+    assert res["runs"][ids["gaslaw-adaptive"]]["models"][0]["kind"] == "rollback"
+    assert "Rolled back" not in (write_report(db, tmp_path / "plain") and
+                                 (tmp_path / "plain" / "report.md").read_text())
+
+
 def test_recovery_counts_strokes_until_the_rolling_fraction_returns():
     k = np.arange(400)
     frac_ok = k < 100

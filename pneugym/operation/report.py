@@ -270,12 +270,13 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                       "|---|---|---|---|---|---|---|---|---|---|---|"]
             steps = step_changes(scen)
             monitored: list[str] = []
+            rolled: list[str] = []
             for rid in ids:
                 s = summary(rec, rid)
                 s["recovery"] = {str(k): v for k, v in recovery(life(rec, rid), steps).items()}
                 s["per_hour"] = per_period(rec, rid, "hour")
                 s["per_shift"] = per_period(rec, rid, "shift")
-                s["models"] = rec.frame("SELECT version, stroke, deployed, score_new, "
+                s["models"] = rec.frame("SELECT version, stroke, kind, deployed, score_new, "
                                         "score_running FROM models WHERE run_id = ? ORDER BY "
                                         "stroke", [rid])
                 s["models"] = [dict(zip(s["models"], r)) for r in zip(*s["models"].values())] \
@@ -286,6 +287,10 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                 if points:
                     s["monitor"] = {"alarm": alarm(points), "checkpoints": points}
                     monitored.append(f"- {_label(rec.run(rid)['controller'])}: {alarm(points)}")
+                back = [m["stroke"] for m in s["models"] if m["kind"] == "rollback"]
+                if back:
+                    rolled.append(f"- {_label(rec.run(rid)['controller'])}: at stroke "
+                                  f"{', '.join(str(k) for k in back)}")
                 result["runs"][rid] = s
                 saved = (None if s["air_nl"] is None  # a run with no stroke recorded yet
                          else (s["air_conventional_nl"] - s["air_nl"]) / 1000)
@@ -297,6 +302,9 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                              f"{_f(s['air_fraction'])} | "
                              f"{_f(saved, 2)} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")
+            if rolled:
+                lines += ["", "Rolled back to the shipped model (a fine-tuned one had stopped "
+                              "cutting):", ""] + rolled
             if monitored:
                 lines += ["", "Condition monitoring (the discrepancy workflow on the record):",
                           ""] + monitored
