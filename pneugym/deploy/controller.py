@@ -55,7 +55,8 @@ class Controller:
     at (extend, cut off on arrival, held 1.5 s after it): give it with
     :meth:`set_commissioning` or to :meth:`reset`. Call :meth:`reset` at every extend command,
     then :meth:`step` once per control period with the newest samples; it returns the valve
-    command (0 keep the supply, 1 cut it off), latched once cut. Use :meth:`load` to build one from a policy's name or a trained model.
+    command (0 keep the supply, 1 cut it off), latched once cut. Use :meth:`load` to build one
+    from a policy's name or a trained model.
     """
 
     def __init__(self, policy: Any, env: Any, source: str = "the policy",
@@ -147,18 +148,9 @@ class Controller:
         point, extended, cut off on arrival and held at least 1.5 s after it, or its features
         (:func:`pneugym.envs.commissioning.run_features`). Raises ``ValueError`` for a run that
         never arrives or ends too soon."""
-        from ..data import MeasuredRun
-        from ..envs.commissioning import run_features
+        from ..envs.commissioning import as_features
 
-        if isinstance(stroke, (MeasuredRun, str, os.PathLike)):
-            feats = run_features(stroke, self.rig.cylinder.stroke_m)
-        else:
-            feats = np.asarray(stroke, dtype=float).reshape(-1)
-            if feats.size != len(COMMISSIONING_OBSERVATION) or not np.isfinite(feats).all():
-                raise ValueError(f"commissioning features must be "
-                                 f"{len(COMMISSIONING_OBSERVATION)} finite numbers "
-                                 f"({[f.name for f in COMMISSIONING_OBSERVATION]}), got "
-                                 f"{stroke!r}")
+        feats = as_features(stroke, self.rig.cylinder.stroke_m)
         self.commissioning = feats
 
     # -- running -------------------------------------------------------------------------------

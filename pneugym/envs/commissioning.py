@@ -14,6 +14,7 @@ noise). Units SI, pressures gauge in the features.
 from __future__ import annotations
 
 import functools
+import os
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,27 @@ def trace_features(t: np.ndarray, x: np.ndarray, p_drive: np.ndarray, p_exhaust:
 def scaled(values: np.ndarray) -> np.ndarray:
     """:func:`trace_features` as the observation holds them (``value / scale``)."""
     return np.asarray(values, dtype=float) / np.array([f.scale for f in COMMISSIONING_OBSERVATION])
+
+
+def as_features(value: Any, stroke_m: float, what: str = "the commissioning stroke"
+                ) -> np.ndarray:
+    """The scaled features of a commissioning stroke given as a measured run (a
+    :class:`~pneugym.data.MeasuredRun` or the path of its JSON, :func:`run_features`) or as
+    the features themselves. Raises ``ValueError`` naming ``what`` for anything else."""
+    from ..data import MeasuredRun
+
+    if isinstance(value, (MeasuredRun, str, os.PathLike)):
+        return run_features(value, stroke_m)
+    try:
+        f = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        f = np.zeros(0)
+    n = len(COMMISSIONING_OBSERVATION)
+    if f.size != n or not np.isfinite(f).all():
+        raise ValueError(f"{what} needs {n} finite numbers (the scaled features "
+                         f"{[x.name for x in COMMISSIONING_OBSERVATION]}), a MeasuredRun or the "
+                         f"path of one; got {value!r:.200}")
+    return f
 
 
 def run_features(run: Any, stroke_m: float) -> np.ndarray:

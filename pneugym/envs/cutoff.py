@@ -46,7 +46,6 @@ import math
 import numbers
 import operator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Mapping
 
 import gymnasium as gym
@@ -235,28 +234,15 @@ def check_options(options: Any) -> Mapping[str, Any]:
 
 def check_commissioning(value: Any, observed: bool, stroke_m: float,
                         what: str = "options['commissioning']") -> np.ndarray:
-    """A ``commissioning`` reset option as the scaled :data:`COMMISSIONING_OBSERVATION`: the
-    features themselves (6 numbers, ``value / scale``), a measured commissioning stroke
-    (:class:`~pneugym.data.MeasuredRun`) or the path of its JSON."""
+    """A ``commissioning`` reset option as the scaled :data:`COMMISSIONING_OBSERVATION`
+    (:func:`pneugym.envs.commissioning.as_features`: the features themselves, a measured
+    commissioning stroke or the path of its JSON), refused where none is ``observed``."""
     if not observed:
         raise ValueError(f"{what}: this environment does not observe a commissioning stroke "
                          f"(build it with observe_rig=True, observe_commissioning=True)")
-    from ..data import MeasuredRun
+    from .commissioning import as_features
 
-    if isinstance(value, (str, Path, MeasuredRun)):
-        from .commissioning import run_features
-
-        return run_features(value, stroke_m)
-    try:
-        f = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        f = np.zeros(0)
-    n = len(COMMISSIONING_OBSERVATION)
-    if f.shape != (n,) or not np.all(np.isfinite(f)):
-        raise ValueError(f"{what} needs the {n} finite scaled features "
-                         f"{[x.name for x in COMMISSIONING_OBSERVATION]}, a MeasuredRun or the "
-                         f"path of one; got {value!r:.200}")
-    return f
+    return as_features(value, stroke_m, what)
 
 
 @functools.lru_cache(maxsize=4096)
