@@ -3,6 +3,8 @@
 
     python benchmarks/bench_operation.py --runs runs --out benchmarks/results/operation
     python benchmarks/bench_operation.py --strokes 1000 --scenarios wear,leak-onset
+    python benchmarks/bench_operation.py --rig my_rig.yaml --scenarios wear \
+        --controllers gaslaw-rig,esac=RUNS/esac-family,esac-adaptive=RUNS/esac-family
 
 Scenarios are independent: two processes on disjoint ``--scenarios`` with their own ``--out`` give
 the same figures as one (the documented figures were run so, on 2 cores). Start each such
@@ -41,22 +43,27 @@ def main() -> None:
     p.add_argument("--rollback-after", type=int, default=None,
                    help="esac-adaptive: strokes without a cut before a fine-tuned model gives "
                         "way to the shipped one (default: the controller's, 50; 0: never)")
+    p.add_argument("--rig", metavar="FILE", help="the operated rig (a rig file; default the "
+                   "thesis rig): runs SCENARIO@RIG at its supply and payload")
+    p.add_argument("--rig-name", metavar="NAME", help="its name (default the file's stem)")
     args = p.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     db = out / "ops.duckdb"
     ctrls = [c.replace("RUNS", args.runs) for c in args.controllers.split(",")]
+    ids = {}
     for sc in args.scenarios.split(","):
         for c in ctrls:
             opts = ({"rollback_after": args.rollback_after} if args.rollback_after is not None
                     and c.startswith("esac-adaptive=") else None)
-            operate(sc, c, strokes=args.strokes, db=db, seed=args.seed, options=opts)
+            ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
+                                 options=opts, rig=args.rig, rig_name=args.rig_name)
     from pneugym.operation.monitor import alarm, monitor
 
     for item in filter(None, args.monitor.split(",")):
         sc, every = item.split(":")
-        if sc in args.scenarios.split(","):
-            pts = monitor(str(db), f"{sc}/seed{args.seed}/gaslaw", every=int(every))
+        if (sc, "gaslaw") in ids:
+            pts = monitor(str(db), ids[sc, "gaslaw"], every=int(every))
             print(f"monitor {sc}: {alarm(pts)}", flush=True)
     res = write_report(db, out)
     for rid, s in res["runs"].items():

@@ -709,3 +709,118 @@ def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
     assert make_controller(f"esac-adaptive={model}", env).config()["rollback_after"] == 50
     with pytest.raises(ValueError, match="are for esac-adaptive"):
         make_controller("gaslaw", env, rollback_after=0)
+
+
+# -- the user's rig ----------------------------------------------------------------------------
+def _my_rig(tmp_path: Path) -> Path:
+    """A rig file of another cylinder set-up: a smaller dead volume, 4 bar and 15 kg."""
+    from pneugym.params import RigParams
+
+    rig = RigParams().with_(supply_pressure_gauge_pa=4e5, load_mass_kg=15.0,
+                            cylinder={"dead_volume_m3": 1.2e-4})
+    return rig.save(tmp_path / "my_rig.yaml")
+
+
+def test_a_scenario_on_a_rig_moves_supply_and_payload_with_the_rig():
+    from pneugym.params import RigParams
+
+    rig = RigParams(supply_pressure_gauge_pa=4e5, load_mass_kg=15.0)
+    s = SCENARIOS["shift"].on_rig(rig, "my_rig")
+    assert s.name == "shift@my_rig" and "supply x1.6, payload x1.5" in s.description
+    assert s.value("supply_pressure_gauge_pa", 0) == pytest.approx(4.8e5)  # 3 bar x 1.6
+    assert s.value("supply_pressure_gauge_pa", 2500) == pytest.approx(3.2e5)  # 2 bar x 1.6
+    assert s.value("friction_scale", 0) == SCENARIOS["shift"].value("friction_scale", 0)
+    lc = SCENARIOS["load-change"].on_rig(rig, "my_rig")
+    assert [lc.value("load_mass_kg", k) for k in (0, 1500, 3500)] == pytest.approx([15, 37.5, 7.5])
+    assert SCENARIOS["wear"].on_rig(RigParams(), "thesis").drift == SCENARIOS["wear"].drift
+    with pytest.raises(ValueError, match="letters, digits"):
+        SCENARIOS["wear"].on_rig(rig, "my rig/2")
+    with pytest.raises(ValueError, match=r"'shift' on rig 'big' \(supply 9 bar.*outside"):
+        SCENARIOS["shift"].on_rig(RigParams(supply_pressure_gauge_pa=9e5), "big")
+
+
+def test_a_life_on_the_users_rig_runs_that_rig_and_records_it(tmp_path):
+    """``operate(rig=FILE)``: the plant is the file's rig at its supply and payload, the run is
+    named after it, the record keeps it (exported runs state it) and another rig under the same
+    name is refused."""
+    from pneugym.data import read_run
+    from pneugym.envs import conventional_figures
+    from pneugym.rigfile import load
+
+    path = _my_rig(tmp_path)
+    rig = load(path)
+    db = tmp_path / "r.duckdb"
+    sc = Scenario("flat", friction_jitter=0.0)
+    rid = operate(sc, "gaslaw", strokes=4, db=db, block=4, progress=False, rig=path)
+    assert rid == "flat@my_rig/seed0/gaslaw"
+    with Record(db, read_only=True) as rec:
+        run = rec.run(rid)
+        truth = rec.truth("flat@my_rig", 0, 0, 3)
+        exported = read_run(export_runs(rec, rid, tmp_path / "runs", 0, 0)[0])
+    assert run["config"]["env"]["rig"] == json.loads(json.dumps(rig.to_dict()))
+    assert truth["supply_pressure_gauge_pa"].tolist() == [4e5] * 4
+    assert truth["load_mass_kg"].tolist() == [15.0] * 4
+    clean = sc.on_rig(rig, "my_rig").conditions(0, 0)
+    t_conv, _ = conventional_figures(
+        type(clean)(supply_pressure_gauge_pa=4e5, load_mass_kg=15.0).rig(rig), clean.dip)
+    t_thesis, _ = conventional_figures(
+        type(clean)(supply_pressure_gauge_pa=4e5, load_mass_kg=15.0).rig(
+            rig.with_(cylinder={"dead_volume_m3": 2.44e-4})), clean.dip)
+    # the environment's stroke and the plant's alone agree to 1e-5; the thesis's dead volume
+    # would move it by far more: the file's rig ran
+    assert truth["conventional_time_s"][0] == pytest.approx(t_conv, rel=1e-4)
+    assert abs(t_conv - t_thesis) > 100 * 1e-4 * t_conv, (t_conv, t_thesis)
+    assert exported.meta["rig"]["dead_volume_m3"] == pytest.approx(1.2e-4)
+    assert exported.meta["supply_pressure_gauge_pa"] == 4e5
+    other = rig.with_(cylinder={"dead_volume_m3": 2e-4})
+    with pytest.raises(ValueError, match="other knots, rest or environment"):
+        operate(sc, "endstroke", strokes=4, db=db, block=4, progress=False, rig=other,
+                rig_name="my_rig")
+    with pytest.raises(ValueError, match="names no rig"):
+        operate(sc, "gaslaw", strokes=4, db=db, progress=False, rig_name="my_rig")
+
+
+def test_the_monitor_reads_a_run_over_its_own_rig(tmp_path, monkeypatch):
+    """On a run of the user's rig the workflow is handed that rig as the commissioned one, and
+    a named change's air cost is the plant's on that rig."""
+    from pneugym.operation import monitor as M
+    from pneugym.rigfile import load
+
+    path = _my_rig(tmp_path)
+    db = tmp_path / "m.duckdb"
+    rid = operate(Scenario("flat"), "gaslaw", strokes=12, db=db, block=12, progress=False,
+                  rig=path)
+    seen = {}
+
+    def fake(runs, candidates, passes, stroke_friction, rig, **workflow):
+        seen["rig"] = rig
+        return {"named": "leakage", "decision": "leakage", "effect":
+                {"leak_drive_area_m2": 3e-7}}
+
+    monkeypatch.setattr(M, "examine", fake)
+    pts = M.monitor(str(db), rid, every=12, window=4, progress=False)
+    assert seen["rig"] == load(path)
+    cost = pts[0]["air_cost"]
+    mine = M.air_cost({"leak_drive_area_m2": 3e-7}, cost["cut_s"], 4e5, 15.0, rig=load(path))
+    thesis = M.air_cost({"leak_drive_area_m2": 3e-7}, cost["cut_s"], 4e5, 15.0)
+    assert cost["conventional_nl"] == pytest.approx(mine["conventional_nl"], rel=1e-9)
+    assert abs(cost["conventional_nl"] - thesis["conventional_nl"]) > 1e-3
+
+
+def test_cli_operates_the_users_rig(tmp_path, capsys):
+    from pneugym.cli import main
+
+    path = _my_rig(tmp_path)
+    db = tmp_path / "c.duckdb"
+    assert main(["operate", "--rig", str(path), "--rig-name", "cell-7", "--scenario", "healthy",
+                 "--policy", "endstroke", "--strokes", "3", "--block", "3", "--db", str(db),
+                 "--no-progress"]) == 0
+    assert "recorded healthy@cell-7/seed0/endstroke" in capsys.readouterr().out
+    for argv, msg in ((["--rig", str(path)], "go with --scenario"),
+                      (["--scenario", "healthy", "--policy", "gaslaw", "--rig-name", "x"],
+                       "give --rig FILE"),
+                      (["--scenario", "healthy", "--policy", "gaslaw", "--rig",
+                        str(tmp_path / "none.yaml")], "file not found")):
+        with pytest.raises(SystemExit):
+            main(["operate", *argv, "--db", str(db)])
+        assert msg in capsys.readouterr().err

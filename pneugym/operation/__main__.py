@@ -3,6 +3,7 @@ or more controllers, record every stroke in DuckDB, and report.
 
     pneugym operate --scenario wear --policy esac=runs/esac --strokes 5000 --db ops.duckdb
     pneugym operate --scenario leak-onset --policy gaslaw --policy gaslaw-adaptive --out ops/
+    pneugym operate --rig my_rig.yaml --scenario wear --policy gaslaw-rig --strokes 2000
     pneugym operate --db ops.duckdb --monitor leak-onset/seed0/gaslaw --every 250
     pneugym operate --db ops.duckdb --out ops/               # report what the record holds
     pneugym operate --db ops.duckdb --export-parquet ops/parquet
@@ -32,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", choices=sorted(SCENARIOS), help="the operating scenario")
     p.add_argument("--policy", action="append", default=[], metavar="SPEC",
                    help=f"a controller (repeatable): {CONTROLLERS}")
+    p.add_argument("--rig", metavar="FILE",
+                   help="the operated rig (a rig file; default the thesis rig): the scenario "
+                        "runs at its stated supply and payload (the named scenarios' supply "
+                        "and load scaled from 2.5 bar and 10 kg), recorded as SCENARIO@NAME")
+    p.add_argument("--rig-name", metavar="NAME",
+                   help="the rig's name in the record (default the rig file's stem)")
     p.add_argument("--strokes", type=int, default=5000, help="strokes to run (default 5000)")
     p.add_argument("--seed", type=int, default=0, help="the scenario's seed (default 0)")
     p.add_argument("--block", type=int, default=25,
@@ -98,6 +105,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--policy needs --scenario")
     if args.scenario and not args.policy:
         parser.error("--scenario needs at least one --policy")
+    if (args.rig or args.rig_name) and not args.policy:
+        parser.error("--rig and --rig-name go with --scenario and --policy")
+    if args.rig_name and not args.rig:
+        parser.error("--rig-name names the rig of --rig: give --rig FILE")
     try:
         options = _monitor_options(args)
     except ValueError as exc:
@@ -130,7 +141,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             ids.append(operate(args.scenario, spec, strokes=args.strokes, db=args.db,
                                seed=args.seed, block=args.block,
-                               progress=not args.no_progress))
+                               progress=not args.no_progress, rig=args.rig,
+                               rig_name=args.rig_name))
         except (ValueError, FileNotFoundError) as exc:
             parser.error(str(exc))
         print(f"recorded {ids[-1]} in {args.db}")

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .record import Record, export_runs
+from .record import Record, export_runs, run_rig
 
 #: What the monitor tests by default: the workflow's five effects and a valve slower than
 #: commissioned (:data:`~pneugym.discrepancy.candidates.VALVE_DELAY`), which wear and age bring
@@ -57,11 +57,11 @@ def _pick(strokes: np.ndarray, cut_s: np.ndarray, window: int) -> np.ndarray:
 
 
 def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
-             load_kg: float, dwell_s: float | None = None) -> dict[str, float]:
+             load_kg: float, dwell_s: float | None = None, rig: Any = None) -> dict[str, float]:
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
     value}``, or ``{"group.field": value}`` for another rig field, e.g. ``valve.delay_scale``): a
-    conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig, each with the
-    rest at the stroke end (``dwell_s``, default the operating
+    conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig (``rig``, default
+    the thesis rig), each with the rest at the stroke end (``dwell_s``, default the operating
     :data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy
     from pneugym.envs import Conditions
@@ -77,8 +77,9 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
     for k, v in effect.items():
         g, name = k.split(".", 1) if "." in k else ("effects", k)
         groups.setdefault(g, {})[name] = float(v)
-    for rig in (RigParams(), RigParams().with_(**groups)):
-        env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=rig)
+    root = RigParams() if rig is None else rig
+    for r in (root, root.with_(**groups)):
+        env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=r)
         f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t), [cond, cond],
                             np.zeros(2, dtype=bool), 0, False,
                             dwell_s=DWELL_S if dwell_s is None else dwell_s)
@@ -95,10 +96,12 @@ def _key(q: Any) -> str:
     return q.name if q.path.startswith("effects.") else q.path
 
 
-def apply_named(runs: list[Any], effect: dict[str, float]) -> tuple[list[Any], Any]:
+def apply_named(runs: list[Any], effect: dict[str, float], rig: Any = None
+                ) -> tuple[list[Any], Any]:
     """``runs`` and a base rig with a named change written in, for a further pass: a slower
     valve as a factor on each run's stated delay (``valve.delay_scale``), an effect
-    (``{EffectParams field: value}``) into the base rig the runs' JSON is read over."""
+    (``{EffectParams field: value}``) into the base rig the runs' JSON is read over (``rig``,
+    default the thesis rig; returned as it is when no effect is written)."""
     import copy
     import dataclasses
 
@@ -116,18 +119,20 @@ def apply_named(runs: list[Any], effect: dict[str, float]) -> tuple[list[Any], A
             effects[k] = float(v)
         else:
             raise ValueError(f"cannot write the named change {k!r} into the runs")
-    return out, (RigParams().with_(effects=effects) if effects else None)
+    root = RigParams() if rig is None else rig
+    return out, (root.with_(effects=effects) if effects else rig)
 
 
 def examine(runs: list[Any], candidates: Any, passes: int = 2, stroke_friction: bool = True,
-            **workflow: Any) -> dict[str, Any]:
+            rig: Any = None, **workflow: Any) -> dict[str, Any]:
     """The workflow on one window's runs, in up to ``passes`` passes: each pass after the first
     writes the changes named so far into the model and tests the candidates left, so that a
     second change behind the first (a leak behind a slower valve) is named too; the changes
     named so far are calibrated again beside every candidate (``calibrate_also``), so a
     candidate gets no credit for what they explain. With
     ``stroke_friction`` each stroke's own friction is fitted first and the calibration fits
-    one factor on it (:func:`~pneugym.discrepancy.fit.own_friction`). Returns ``named`` (the
+    one factor on it (:func:`~pneugym.discrepancy.fit.own_friction`). ``rig``: the commissioned
+    rig the runs' JSON is read over (default the thesis rig). Returns ``named`` (the
     changes joined by ``+``, ``none`` or ``ambiguous``), ``decision`` (every pass's), ``effect``
     (their fitted values) and the last pass's workflow (``workflow``)."""
     from pneugym.discrepancy import Discrepancy
@@ -140,10 +145,10 @@ def examine(runs: list[Any], candidates: Any, passes: int = 2, stroke_friction: 
     decisions: list[str] = []
     effect: dict[str, float] = {}
     found: tuple = ()  # the named changes' parameters, calibrated again in every later pass
-    cur, base = list(runs), None
+    cur, base = list(runs), rig
     for k in range(passes):
         if k:
-            cur, base = apply_named(runs, effect)
+            cur, base = apply_named(runs, effect, rig)
         if stroke_friction:
             cur = own_friction(cur, base=base)
         wf = Discrepancy(**{"seed": 0, "calibrate": "basic", "discrepancy_term": None,
@@ -201,6 +206,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
         run = rec.run(run_id)
         if run is None:
             raise ValueError(f"no run {run_id!r} in {db}")
+        rig = run_rig(run["config"]) if (run["config"].get("env") or {}).get("rig") else None
         n = int(rec.con.execute("SELECT max(stroke) + 1 FROM strokes WHERE run_id = ?",
                                 [run_id]).fetchone()[0] or 0)
         cps = [c for c in range(every, n + 1, every)
@@ -221,7 +227,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 import time
 
                 t0 = time.perf_counter()
-                got = examine(runs, candidates, passes, stroke_friction, **workflow)
+                got = examine(runs, candidates, passes, stroke_friction, rig, **workflow)
                 wall = time.perf_counter() - t0
             effect, cost = got["effect"], {}
             if effect:
@@ -230,7 +236,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 load = float(runs[-1].meta["load_mass_kg"])
                 cost = air_cost(effect, float(np.nanmedian(t["cutoff_time_s"])),
                                 float(np.median(t["supply_setpoint_pa"])), load,
-                                float(run["config"].get("dwell_s", 0.0)))
+                                float(run["config"].get("dwell_s", 0.0)), rig)
             rec.con.execute("INSERT OR REPLACE INTO monitor VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                             [run_id, c, int(c - every), got["named"], got["decision"],
                              json.dumps(effect), json.dumps(cost), wall])

@@ -286,6 +286,16 @@ def _py(v: Any) -> Any:
     return v
 
 
+def run_rig(config: Mapping[str, Any] | None) -> Any:
+    """The rig a run operated (from its recorded configuration): the thesis rig unless the run
+    names one (``pneugym operate --rig``)."""
+    from ..params import RigParams
+    from ..rigfile import as_rig
+
+    rig = ((config or {}).get("env") or {}).get("rig")
+    return RigParams() if rig is None else as_rig(rig, "the run's recorded rig")
+
+
 def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
                 last: int | None = None) -> list[Path]:
     """Strokes ``first`` to ``last`` of a run as ``pneugym-measurement/1`` runs in ``out`` (one
@@ -294,12 +304,11 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
     (thesis Fig. 3.6; the format states the delay itself), the load and supply each stroke's),
     e.g. for the discrepancy workflow."""
     from ..data import FORMAT, MeasuredRun, write_run
-    from ..params import RigParams
 
     run = rec.run(run_id)
     if run is None:
         raise ValueError(f"no run {run_id!r} in {rec.path}")
-    rig = RigParams()
+    rig = run_rig(run["config"])
     last = 2**62 if last is None else last
     meta = rec.frame("SELECT s.stroke, s.supply_setpoint_pa, t.load_mass_kg, s.cutoff_time_s "
                      "FROM strokes s JOIN truth t ON t.scenario = ? AND t.seed = ? AND "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import datetime
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -221,7 +222,8 @@ DWELL_S = 0.4
 def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
             db: str | Path = "ops.duckdb", seed: int = 0, block: int = 25,
             progress: bool = True, dwell_s: float = DWELL_S,
-            options: dict[str, Any] | None = None) -> str:
+            options: dict[str, Any] | None = None, rig: Any = None,
+            rig_name: str | None = None) -> str:
     """Run ``strokes`` strokes of ``scenario`` under ``controller`` (a spec of
     :func:`agents.adaptive.make_controller`: ``gaslaw``, ``esac=runs/esac``,
     ``gaslaw-adaptive``, ``esac-adaptive=runs/esac``, ...), recording every stroke in the DuckDB
@@ -229,7 +231,10 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     checkpoint (and returns at once if finished). Each stroke's record ends with a rest of
     ``dwell_s`` at the stroke end (the valve held). ``options``: keyword arguments of an
     adaptive ESAC controller (e.g. ``{"rollback_after": 0}``), recorded with its configuration.
-    Returns the run's id."""
+    ``rig``: the operated rig (a :class:`~pneugym.params.RigParams`, a mapping or a rig file;
+    default the thesis rig): the scenario runs at its stated supply and payload
+    (:meth:`Scenario.on_rig`), named ``SCENARIO@NAME`` (``rig_name``, default the file's stem),
+    and the record keeps the rig. Returns the run's id."""
     from tqdm import tqdm
 
     from agents.adaptive import MEASURED, make_controller
@@ -238,24 +243,24 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
-    sc = get_scenario(scenario)
+    sc, env_config, env_record = on_rig(get_scenario(scenario), rig, rig_name)
     if not (isinstance(strokes, int) and strokes >= 1):
         raise ValueError(f"strokes = {strokes!r} must be an integer >= 1")
     if not (isinstance(block, int) and 1 <= block <= 1024):
         raise ValueError(f"block = {block!r} must be an integer in [1, 1024]")
     if not (isinstance(dwell_s, (int, float)) and 0.0 <= dwell_s <= 10.0):
         raise ValueError(f"dwell_s = {dwell_s!r} must be in [0, 10] s")
-    probe = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    probe = CutOffVectorEnv(num_envs=1, **env_config)
     ctrl = make_controller(controller, probe, seed, **dict(options or {}))
     run_id = run_id_of(sc.name, seed, controller)
-    config = {"scenario": sc.to_dict(), "seed": seed, "block": block, "env": ENV_CONFIG,
+    config = {"scenario": sc.to_dict(), "seed": seed, "block": block, "env": env_record,
               "dwell_s": float(dwell_s), "controller": ctrl.config()}
     oracle = OraclePolicy.for_env(probe)
     with Record(db) as rec:
         start, state = rec.start_run(run_id, sc.name, seed, controller, strokes, config,
                                      provenance(), _now())
         rec.claim_truth(sc.name, seed, {"scenario": sc.to_dict(), "dwell_s": float(dwell_s),
-                                        "env": ENV_CONFIG})
+                                        "env": env_record})
         if state is not None:
             ctrl.restore(state, rec, run_id)
         bar = tqdm(total=strokes, initial=min(start, strokes), desc=f"{sc.name} {controller}",
@@ -272,7 +277,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
                 rec.write_truth(sc.name, seed, {"stroke": ks, **{q: [r[q] for r in t]
                                                                  for q in t[0]}, **refs})
             if env is None or env.num_envs != ks.size:
-                env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **ENV_CONFIG)
+                env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **env_config)
             policy, flags = ctrl.plan(ks)
             told = [commissioned(sc, seed, c, env.rig) for c in conds]
             fig, traces, dec = run_block(env, policy, conds, flags["reference"],
@@ -288,6 +293,24 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
         bar.close()
         rec.finish_run(run_id)
     return run_id
+
+
+def on_rig(sc: Scenario, rig: Any = None, rig_name: str | None = None
+           ) -> tuple[Scenario, dict[str, Any], dict[str, Any]]:
+    """``sc`` on ``rig`` (:meth:`Scenario.on_rig`; ``None``: the thesis rig, ``sc`` as it is),
+    the operating environment's options and what the record keeps of them (the rig as
+    :meth:`~pneugym.params.RigParams.to_dict`)."""
+    if rig is None:
+        if rig_name is not None:
+            raise ValueError(f"rig_name = {rig_name!r} names no rig: give rig too")
+        return sc, dict(ENV_CONFIG), dict(ENV_CONFIG)
+    from pneugym.rigfile import as_rig
+
+    base = as_rig(rig, "rig")
+    if rig_name is None:
+        rig_name = Path(rig).stem if isinstance(rig, (str, os.PathLike)) else "custom"
+    return (sc.on_rig(base, rig_name), {**ENV_CONFIG, "rig": base},
+            {**ENV_CONFIG, "rig": base.to_dict()})
 
 
 def _stroke_rows(sc: Scenario, ks: np.ndarray, fig: dict, flags: dict, dec: list, version: str,

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -37,6 +38,8 @@ POSITION_NOISE_M = 3e-5
 PRESSURE_NOISE_PA = 400.0
 
 Knots = tuple[tuple[int, float], ...]
+#: a rig's name in a scenario's (``wear@my_rig``)
+RIG_LABEL = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 
 def _knots(name: str, value: Any) -> Knots:
@@ -120,6 +123,30 @@ class Scenario:
                           valve_delay_scale=t["valve_delay_scale"],
                           position_noise_m=POSITION_NOISE_M, pressure_noise_pa=PRESSURE_NOISE_PA,
                           rig_changes=changes)
+
+    def on_rig(self, rig: Any, label: str) -> "Scenario":
+        """This life on another rig (a :class:`~pneugym.params.RigParams`), named
+        ``NAME@label``: the scenarios are written for the thesis rig's operating point (2.5 bar
+        gauge, 10 kg), so the supply and payload knots move by the factors of the rig's stated
+        supply and payload to those; friction and valve delay are factors already, and a leak
+        is the area it is (a fitting leaks alike on any cylinder)."""
+        if not (isinstance(label, str) and RIG_LABEL.fullmatch(label)):
+            raise ValueError(f"rig name {label!r}: letters, digits, '_', '-' and '.' only (it "
+                             f"goes into the run's id, SCENARIO@RIG/seedN/CONTROLLER)")
+        scale = {"supply_pressure_gauge_pa": rig.supply_pressure_gauge_pa
+                 / NOMINAL["supply_pressure_gauge_pa"],
+                 "load_mass_kg": rig.load_mass_kg / NOMINAL["load_mass_kg"]}
+        drift = {k: tuple((s, v * scale.get(k, 1.0)) for s, v in pts)
+                 for k, pts in self.drift.items()}
+        try:
+            return dataclasses.replace(self, name=f"{self.name}@{label}", drift=drift,
+                                       description=f"{self.description} (on {label}: supply "
+                                       f"x{scale['supply_pressure_gauge_pa']:.3g}, payload "
+                                       f"x{scale['load_mass_kg']:.3g})")
+        except ValueError as exc:
+            raise ValueError(f"scenario {self.name!r} on rig {label!r} (supply "
+                             f"{rig.supply_pressure_gauge_pa / 1e5:g} bar gauge, payload "
+                             f"{rig.load_mass_kg:g} kg): {exc}") from None
 
     def hour(self, stroke: int) -> float:
         """Operating hours at the start of ``stroke``."""
