@@ -266,7 +266,12 @@ class AdaptiveESAC(Frozen):
     range, in steps of a sixth of it; ``tune_z`` standard errors to move). A model that stops
     cutting records nothing to learn from, so when the running model is not the shipped one and
     none of its last ``rollback_after`` strokes (reference strokes aside) cut, the shipped model
-    runs again (a *rollback*, recorded as a model of kind ``rollback``; 0: never)."""
+    runs again (a *rollback*, recorded as a model of kind ``rollback``; 0: never). The deployment
+    test scores predictions of the cuts the record holds, so it cannot see a model that cuts
+    where none was recorded and stalls there: a freshly deployed model is on *probation* for its
+    first ``probation`` regular strokes (reference and exploring strokes aside), and if
+    ``probation_stalls`` of them stall, the model it replaced runs again (recorded as kind
+    ``withdrawn``; ``probation=0``: never)."""
 
     needs_inputs = True
     reference_every = 100
@@ -275,7 +280,8 @@ class AdaptiveESAC(Frozen):
                  window: int = 1000, holdout: float = 0.25, epochs: int = 30, lr: float = 5e-4,
                  min_gain: float = 0.02, explore: float = 0.1,
                  explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
-                 tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50):
+                 tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50,
+                 probation: int = 50, probation_stalls: int = 3):
         super().__init__(spec, env, seed)
         from .esac.policy import ESACPolicy
 
@@ -287,7 +293,16 @@ class AdaptiveESAC(Frozen):
         if not (isinstance(rollback_after, int) and rollback_after >= 0):
             raise ValueError(f"rollback_after = {rollback_after!r} must be an integer >= 0 "
                              f"(strokes; 0: never roll back)")
+        if not (isinstance(probation, int) and probation >= 0 and isinstance(probation_stalls, int)
+                and 1 <= probation_stalls and (probation == 0 or probation_stalls <= probation)):
+            raise ValueError(f"probation = {probation!r} (regular strokes, 0: none) and "
+                             f"probation_stalls = {probation_stalls!r} (stalls that withdraw a "
+                             f"model, 1 to probation) must be integers")
         self.rollback_after = rollback_after
+        self.probation, self.probation_stalls = probation, probation_stalls
+        # the model a fresh one replaced, while the fresh one is on probation: its version, its
+        # network and whether it is the shipped one (None: no model on probation)
+        self.previous: tuple[str, Any, bool] | None = None
         self.shipped = copy.deepcopy(self.policy.predictor.net)  # what a rollback runs again
         self.deployed_at = 0  # the stroke the running model took over at
         self.shipped_runs = True  # the running model is the shipped one (none fine-tuned)
@@ -322,7 +337,8 @@ class AdaptiveESAC(Frozen):
                 "min_gain": self.min_gain, "explore": self.explore,
                 "explore_range": list(self.explore_range), "reference_every": self.reference_every,
                 "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
-                "tune_z": self.tuner.z, "rollback_after": self.rollback_after}
+                "tune_z": self.tuner.z, "rollback_after": self.rollback_after,
+                "probation": self.probation, "probation_stalls": self.probation_stalls}
 
     def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
         from .esac.policy import ESACPolicy
@@ -398,6 +414,7 @@ class AdaptiveESAC(Frozen):
         if own.sum() < n or cut[own][-n:].any():
             return []
         self.generation += 1
+        self.previous = None  # (no probation for the shipped model)
         version = f"{self.name}-v{self.generation}"
         self.policy.predictor.net = self.shipped
         self.shipped = copy.deepcopy(self.shipped)  # (kept apart from the running net)
@@ -408,8 +425,38 @@ class AdaptiveESAC(Frozen):
                  "detail": {"to": f"{self.name}-v0", "reason": f"no cut in the last {n} strokes"},
                  "blob": _net_bytes(self.policy.predictor.net, self.policy)}]
 
+    def _probation(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
+        """The model replaced by the running one again if :attr:`probation_stalls` of the running
+        one's first :attr:`probation` regular strokes stalled; the probation ends when they ran
+        with fewer stalls."""
+        if self.previous is None:
+            return []
+        rec = record.strokes(run_id, self.deployed_at, stroke - 1,
+                             columns=("stroke", "reference", "explore", "stalled"))
+        regular = ~(rec["reference"].astype(bool) | rec["explore"].astype(bool))
+        stalls = int(rec["stalled"].astype(bool)[regular][:self.probation].sum())
+        if stalls < self.probation_stalls:
+            if regular.sum() >= self.probation:
+                self.previous = None  # passed
+            return []
+        version, net, shipped = self.previous
+        self.previous = None
+        self.generation += 1
+        new = f"{self.name}-v{self.generation}"
+        self.policy.predictor.net = net
+        if shipped:
+            self.shipped = copy.deepcopy(net)  # (kept apart from the running net)
+        failed = self.model_version
+        self.model_version, self.deployed_at, self.shipped_runs = new, stroke, shipped
+        self.version = self._version()
+        return [{"version": new, "stroke": stroke, "kind": "withdrawn", "deployed": True,
+                 "score_new": None, "score_running": None,
+                 "detail": {"to": version, "withdrawn": failed, "reason":
+                            f"{stalls} of its first {self.probation} regular strokes stalled"},
+                 "blob": _net_bytes(net, self.policy)}]
+
     def adapt(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
-        back = self._rollback(record, run_id, stroke)
+        back = self._probation(record, run_id, stroke) or self._rollback(record, run_id, stroke)
         if back:
             return back
         if stroke - self.last_adapt < self.adapt_every:
@@ -437,6 +484,8 @@ class AdaptiveESAC(Frozen):
         self.generation += 1
         version = f"{self.name}-v{self.generation}"
         if deploy:
+            if self.probation:
+                self.previous = (self.model_version, running, self.shipped_runs)
             self.policy.predictor.net = cand
             self.model_version, self.deployed_at, self.shipped_runs = version, stroke, False
             self.version = self._version()
@@ -451,7 +500,9 @@ class AdaptiveESAC(Frozen):
                            "generation": self.generation, "last_adapt": self.last_adapt,
                            "demand": self.demand, "conv": list(self.conv),
                            "tuner": self.tuner.state(), "deployed_at": self.deployed_at,
-                           "shipped_runs": self.shipped_runs}).encode()
+                           "shipped_runs": self.shipped_runs,
+                           "previous": None if self.previous is None else
+                           [self.previous[0], self.previous[2]]}).encode()
 
     def restore(self, state: bytes, record: Any, run_id: str) -> None:
         s = json.loads(state)
@@ -463,12 +514,24 @@ class AdaptiveESAC(Frozen):
         self.tuner.restore(s["tuner"])
         self.version = self._version()
         if not self.shipped_runs:  # (a rollback runs the shipped model, loaded already)
-            row = record.con.execute("SELECT blob FROM models WHERE run_id = ? AND version = ?",
-                                     [run_id, self.model_version]).fetchone()
-            if row is None:
-                raise ValueError(f"run {run_id!r}: its checkpoint names model "
-                                 f"{self.model_version}, which the record does not hold")
-            self.policy.predictor.net = _net_from_bytes(row[0])
+            self.policy.predictor.net = self._recorded(record, run_id, self.model_version)
+        prev = s.get("previous")
+        self.previous = None
+        if prev is not None:
+            version, shipped = prev[0], bool(prev[1])
+            net = (copy.deepcopy(self.shipped) if shipped
+                   else self._recorded(record, run_id, version))
+            self.previous = (version, net, shipped)
+
+    @staticmethod
+    def _recorded(record: Any, run_id: str, version: str) -> Any:
+        """The network of model ``version`` in the record's ``models`` table."""
+        row = record.con.execute("SELECT blob FROM models WHERE run_id = ? AND version = ?",
+                                 [run_id, version]).fetchone()
+        if row is None:
+            raise ValueError(f"run {run_id!r}: its checkpoint names model {version}, which the "
+                             f"record does not hold")
+        return _net_from_bytes(row[0])
 
 
 def _net_bytes(net: Any, policy: Any) -> bytes:

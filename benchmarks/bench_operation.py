@@ -5,6 +5,8 @@
     python benchmarks/bench_operation.py --strokes 1000 --scenarios wear,leak-onset
     python benchmarks/bench_operation.py --rig my_rig.yaml --scenarios wear \
         --controllers gaslaw-rig,esac=RUNS/esac-family,esac-adaptive=RUNS/esac-family
+    python benchmarks/bench_operation.py --transfer-rig heldout-3 --scenarios wear \
+        --controllers gaslaw,gaslaw-rig,esac=RUNS/esac-family,esac-adaptive=RUNS/esac-family
 
 Scenarios are independent: two processes on disjoint ``--scenarios`` with their own ``--out`` give
 the same figures as one (the documented figures were run so, on 2 cores). Start each such
@@ -43,10 +45,30 @@ def main() -> None:
     p.add_argument("--rollback-after", type=int, default=None,
                    help="esac-adaptive: strokes without a cut before a fine-tuned model gives "
                         "way to the shipped one (default: the controller's, 50; 0: never)")
+    p.add_argument("--probation", type=int, default=None,
+                   help="esac-adaptive: regular strokes a fine-tuned model is on probation for "
+                        "(3 stalls there: the model before it runs again; default the "
+                        "controller's, 50; 0: none)")
     p.add_argument("--rig", metavar="FILE", help="the operated rig (a rig file; default the "
                    "thesis rig): runs SCENARIO@RIG at its supply and payload")
     p.add_argument("--rig-name", metavar="NAME", help="its name (default the file's stem)")
+    p.add_argument("--transfer-rig", metavar="NAME",
+                   help="instead of --rig: a rig of the transfer suite (heldout-1 ... "
+                        "heldout-6, edge-..., form-...: agents.evaluation.suites.transfer_rigs), "
+                        "named so")
     args = p.parse_args()
+    if args.transfer_rig:
+        if args.rig:
+            p.error("--rig or --transfer-rig, not both")
+        from agents.evaluation.suites import transfer_rigs
+        from pneugym.envs.conditions import apply_changes
+        from pneugym.params import RigParams
+
+        rigs = transfer_rigs()
+        if args.transfer_rig not in rigs:
+            p.error(f"--transfer-rig {args.transfer_rig!r}: one of {', '.join(rigs)}")
+        args.rig = apply_changes(RigParams(), rigs[args.transfer_rig])
+        args.rig_name = args.rig_name or args.transfer_rig
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     db = out / "ops.duckdb"
@@ -54,8 +76,9 @@ def main() -> None:
     ids = {}
     for sc in args.scenarios.split(","):
         for c in ctrls:
-            opts = ({"rollback_after": args.rollback_after} if args.rollback_after is not None
-                    and c.startswith("esac-adaptive=") else None)
+            opts = {k: v for k, v in (("rollback_after", args.rollback_after),
+                                      ("probation", args.probation)) if v is not None}
+            opts = opts if opts and c.startswith("esac-adaptive=") else None
             ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
                                  options=opts, rig=args.rig, rig_name=args.rig_name)
     from pneugym.operation.monitor import alarm, monitor

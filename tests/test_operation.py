@@ -254,7 +254,8 @@ def test_report_tables_plots_and_recovery(gaslaw_life, tmp_path):
 
 
 def test_report_names_rollbacks(gaslaw_life, tmp_path):
-    """A rollback in the record's models (written here by hand) is listed in the report."""
+    """A rollback and a withdrawal in the record's models (written here by hand) are listed in
+    the report."""
     import shutil
 
     db, _, ids = gaslaw_life
@@ -263,12 +264,19 @@ def test_report_names_rollbacks(gaslaw_life, tmp_path):
     with Record(copy) as rec:
         rec.con.execute("INSERT INTO models VALUES (?, 'v3', 40, 'rollback', true, NULL, NULL, "
                         "'{}', NULL)", [ids["gaslaw-adaptive"]])
+        rec.con.execute("INSERT INTO models VALUES (?, 'v4', 50, 'withdrawn', true, NULL, NULL, "
+                        "'{}', NULL)", [ids["gaslaw-adaptive"]])
     res = write_report(copy, tmp_path / "rep")
     md = (tmp_path / "rep" / "report.md").read_text()
-    assert "Rolled back to the shipped model" in md and "- gaslaw-adaptive: at stroke 40" in md
-    assert res["runs"][ids["gaslaw-adaptive"]]["models"][0]["kind"] == "rollback"
-    write_report(db, tmp_path / "plain")  # the record without it
-    assert "Rolled back" not in (tmp_path / "plain" / "report.md").read_text()
+    assert "Models taken back:" in md
+    assert ("- gaslaw-adaptive: rolled back to the shipped model (a fine-tuned one had stopped "
+            "cutting), at stroke 40") in md
+    assert ("- gaslaw-adaptive: withdrew a fine-tuned model that stalled on probation, at "
+            "stroke 50") in md
+    kinds = [m["kind"] for m in res["runs"][ids["gaslaw-adaptive"]]["models"]]
+    assert kinds == ["rollback", "withdrawn"]
+    write_report(db, tmp_path / "plain")  # the record without them
+    assert "taken back" not in (tmp_path / "plain" / "report.md").read_text()
 
 
 def test_recovery_counts_strokes_until_the_rolling_fraction_returns():
@@ -657,7 +665,24 @@ class _Record:
                                           dtype=object)}
 
 
-def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_esac(tmp_path_factory):
+    """A small ESAC model of the thesis rig (its file, network and training samples)."""
+    from agents import esac
+
+    data = esac.generate_rollouts(96, seed=5, history=2, preset="thesis-2.5bar", batch=96,
+                                  progress=False)
+    stroke = CutOffVectorEnv(num_envs=1).rig.cylinder.stroke_m
+    x, y, mask, ep = esac.samples(data, stroke, delay_input=False)
+    net, _ = esac.fit(x, y, mask, hidden=(8,), epochs=2, groups=ep, progress=False)
+    model = tmp_path_factory.mktemp("esac") / "esac.pt"
+    esac.save(model, net, {"layout": CutOffVectorEnv(num_envs=1, history=2).observation_layout(),
+                           "n_in": x.shape[1], "hidden": [8], "delay_input": False,
+                           "lookahead_s": [], "rule": {"margin": 0.6}})
+    return model, net, (x, y, mask, ep)
+
+
+def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tiny_esac):
     """A fine-tuned model that has not cut on its last ``rollback_after`` strokes gives way to
     the shipped one (recorded as a rollback, with its network); one that cut lately, the
     shipped model itself and ``rollback_after=0`` never do."""
@@ -666,15 +691,7 @@ def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
     from agents import esac
     from agents.adaptive import AdaptiveESAC, _net_from_bytes
 
-    data = esac.generate_rollouts(96, seed=5, history=2, preset="thesis-2.5bar", batch=96,
-                                  progress=False)
-    stroke = CutOffVectorEnv(num_envs=1).rig.cylinder.stroke_m
-    x, y, mask, ep = esac.samples(data, stroke, delay_input=False)
-    net, _ = esac.fit(x, y, mask, hidden=(8,), epochs=2, groups=ep, progress=False)
-    model = tmp_path / "esac.pt"
-    esac.save(model, net, {"layout": CutOffVectorEnv(num_envs=1, history=2).observation_layout(),
-                           "n_in": x.shape[1], "hidden": [8], "delay_input": False,
-                           "lookahead_s": [], "rule": {"margin": 0.6}})
+    model, net, (x, y, mask, ep) = tiny_esac
     env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
 
     def fine_tuned(**kw):
@@ -710,6 +727,87 @@ def test_adaptive_esac_rolls_back_a_model_that_stopped_cutting(tmp_path):
     with pytest.raises(ValueError, match="are for esac-adaptive"):
         make_controller("gaslaw", env, rollback_after=0)
 
+
+
+class _Stalls:
+    """The part of :class:`Record` the probation reads: strokes 0-99, references at multiples
+    of 100 (stroke 0), exploring strokes in ``explore``, stalls in ``stalls``."""
+
+    def __init__(self, stalls, explore=()):
+        self.stalls, self.explore = set(stalls), set(explore)
+
+    def strokes(self, run_id, first=0, last=None, columns=()):
+        k = np.arange(first, min(99, last) + 1)
+        return {"stroke": k, "reference": k % 100 == 0,
+                "explore": np.isin(k, list(self.explore)),
+                "stalled": np.isin(k, list(self.stalls))}
+
+
+def test_a_fine_tuned_model_that_stalls_on_probation_is_withdrawn(tiny_esac):
+    """A freshly deployed model whose first regular strokes stall (3 of up to ``probation``;
+    exploring and reference strokes aside) gives way to the model it replaced, recorded as
+    ``withdrawn`` with that model's network; fewer stalls, or stalls after the probation,
+    leave it running; a checkpoint taken on probation restores the model to go back to."""
+    import torch
+
+    from agents import esac
+    from agents.adaptive import AdaptiveESAC, _net_from_bytes
+
+    model, net, (x, y, mask, ep) = tiny_esac
+    env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    fresh = esac.fit(x, y, mask, hidden=(8,), epochs=1, seed=9, groups=ep, progress=False,
+                     init=net)[0]
+
+    def on_probation(**kw):
+        """A controller that deployed ``fresh`` at stroke 1 in place of the shipped model."""
+        c = AdaptiveESAC(f"esac-adaptive={model}", env, **kw)
+        c.previous = (c.model_version, c.policy.predictor.net, True)
+        c.policy.predictor.net = fresh
+        c.generation, c.model_version, c.shipped_runs, c.deployed_at = 1, f"{c.name}-v1", False, 1
+        return c
+
+    def same(a, b):
+        return all(torch.equal(p, q) for p, q in zip(a.state_dict().values(),
+                                                     b.state_dict().values()))
+
+    c = on_probation(probation=10)
+    assert c.adapt(_Stalls({3, 5}), "x", 8) == []  # two stalls in 7 strokes: on probation
+    assert c.previous is not None and same(c.policy.predictor.net, fresh)
+    (row,) = c.adapt(_Stalls({3, 5, 7}), "x", 12)
+    assert row["kind"] == "withdrawn" and row["deployed"] and row["version"] == f"{c.name}-v2"
+    assert row["detail"]["to"] == f"{c.name}-v0" and row["detail"]["withdrawn"] == f"{c.name}-v1"
+    assert same(c.policy.predictor.net, net) and same(_net_from_bytes(row["blob"]), net)
+    assert c.shipped_runs and c.previous is None and c.deployed_at == 12
+    assert c.adapt(_Stalls(range(12, 40)), "x", 40) == []  # (the shipped model is on no probation)
+    # exploring strokes do not count; stalls after the probation's 10 regular strokes neither
+    c = on_probation(probation=10)
+    assert c.adapt(_Stalls({3, 5, 7}, explore={3, 5, 7}), "x", 12) == []
+    c = on_probation(probation=10)
+    assert c.adapt(_Stalls({20, 21, 22}), "x", 25) == [] and c.previous is None
+    assert on_probation(probation=0).adapt(_Stalls({3, 5, 7}), "x", 12) == []
+    # a checkpoint on probation: the model to go back to comes back with it
+    c = on_probation(probation=10)
+    c2 = AdaptiveESAC(f"esac-adaptive={model}", env, probation=10)
+
+    class _Models(_Stalls):
+        class con:
+            @staticmethod
+            def execute(sql, params):
+                from agents.adaptive import _net_bytes
+
+                class _Row:
+                    def fetchone(self):
+                        return (_net_bytes(fresh, c.policy),)
+                return _Row()
+
+    c2.restore(c.state(), _Models(()), "x")
+    assert c2.previous[0] == f"{c.name}-v0" and c2.previous[2]
+    assert same(c2.previous[1], net) and same(c2.policy.predictor.net, fresh)
+    (row,) = c2.adapt(_Stalls({3, 5, 7}), "x", 12)
+    assert row["kind"] == "withdrawn" and same(c2.policy.predictor.net, net)
+    with pytest.raises(ValueError, match="probation"):
+        AdaptiveESAC(f"esac-adaptive={model}", env, probation=10, probation_stalls=0)
+    assert make_controller(f"esac-adaptive={model}", env).config()["probation"] == 50
 
 # -- the user's rig ----------------------------------------------------------------------------
 def _my_rig(tmp_path: Path) -> Path:

@@ -287,10 +287,14 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                 if points:
                     s["monitor"] = {"alarm": alarm(points), "checkpoints": points}
                     monitored.append(f"- {_label(rec.run(rid)['controller'])}: {alarm(points)}")
-                back = [m["stroke"] for m in s["models"] if m["kind"] == "rollback"]
-                if back:
-                    rolled.append(f"- {_label(rec.run(rid)['controller'])}: at stroke "
-                                  f"{', '.join(str(k) for k in back)}")
+                for kind, what in (("rollback", "rolled back to the shipped model (a "
+                                                "fine-tuned one had stopped cutting)"),
+                                   ("withdrawn", "withdrew a fine-tuned model that stalled on "
+                                                 "probation")):
+                    back = [m["stroke"] for m in s["models"] if m["kind"] == kind]
+                    if back:
+                        rolled.append(f"- {_label(rec.run(rid)['controller'])}: {what}, at "
+                                      f"stroke {', '.join(str(k) for k in back)}")
                 result["runs"][rid] = s
                 saved = (None if s["air_nl"] is None  # a run with no stroke recorded yet
                          else (s["air_conventional_nl"] - s["air_nl"]) / 1000)
@@ -303,8 +307,7 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
                              f"{_f(saved, 2)} | {s['stalls']} | {s['stick_slip_strokes']} | "
                              f"{_f(s['worst_stroke_time_s'])} | {rec_txt} |")
             if rolled:
-                lines += ["", "Rolled back to the shipped model (a fine-tuned one had stopped "
-                              "cutting):", ""] + rolled
+                lines += ["", "Models taken back:", ""] + rolled
             if monitored:
                 lines += ["", "Condition monitoring (the discrepancy workflow on the record):",
                           ""] + monitored
