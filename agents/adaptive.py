@@ -271,7 +271,10 @@ class AdaptiveESAC(Frozen):
     where none was recorded and stalls there: a freshly deployed model is on *probation* for its
     first ``probation`` regular strokes (reference and exploring strokes aside), and if
     ``probation_stalls`` of them stall, the model it replaced runs again (recorded as kind
-    ``withdrawn``; ``probation=0``: never)."""
+    ``withdrawn``; ``probation=0``: never). With ``explore_max`` above the range's top, the
+    range grows by its first width whenever the tuned demand reaches its top step, up to
+    ``explore_max`` (for a rig whose best cut makes the stroke far longer than the conventional
+    one; default ``None``: the range never grows)."""
 
     needs_inputs = True
     reference_every = 100
@@ -281,7 +284,8 @@ class AdaptiveESAC(Frozen):
                  min_gain: float = 0.02, explore: float = 0.1,
                  explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
                  tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50,
-                 probation: int = 50, probation_stalls: int = 3):
+                 probation: int = 50, probation_stalls: int = 3,
+                 explore_max: float | None = None):
         super().__init__(spec, env, seed)
         from .esac.policy import ESACPolicy
 
@@ -319,6 +323,11 @@ class AdaptiveESAC(Frozen):
         self.last_adapt = 0
         self.model_version = f"{self.name}-v0"
         lo, hi = self.explore_range
+        explore_max = hi if explore_max is None else explore_max
+        if not (0.0 <= lo < hi <= explore_max <= 5.0):
+            raise ValueError(f"explore_range = {explore_range!r} and explore_max = "
+                             f"{explore_max!r}: need 0 <= low < high <= explore_max <= 5")
+        self.explore_width, self.explore_max = hi - lo, float(explore_max)
         self.tune_demand = bool(tune_demand)
         self.tuner = DemandTuner(np.linspace(lo, hi, 7), window=tune_window,
                                  bandwidth=(hi - lo) / 6.0, z=tune_z)
@@ -338,7 +347,8 @@ class AdaptiveESAC(Frozen):
                 "explore_range": list(self.explore_range), "reference_every": self.reference_every,
                 "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
                 "tune_z": self.tuner.z, "rollback_after": self.rollback_after,
-                "probation": self.probation, "probation_stalls": self.probation_stalls}
+                "probation": self.probation, "probation_stalls": self.probation_stalls,
+                "explore_max": self.explore_max}
 
     def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
         from .esac.policy import ESACPolicy
@@ -365,7 +375,23 @@ class AdaptiveESAC(Frozen):
         cut = ~ref
         self.tuner.add(np.asarray(rec["stroke"])[cut], self._planned[cut], j[cut])
         self.demand = self.tuner.choose(self.demand)
+        self._grow()
         self.version = self._version()
+
+    def _grow(self) -> None:
+        """Widen the explored demands when the tuned one reached the range's top step: the top
+        grows by the first range's width (up to :attr:`explore_max`), the tuner's grid keeping
+        its step."""
+        lo, hi = self.explore_range
+        step = self.explore_width / 6.0
+        if self.demand < hi - step - 1e-9 or hi >= self.explore_max - 1e-9:
+            return
+        self._set_top(min(self.explore_max, hi + self.explore_width))
+
+    def _set_top(self, hi: float) -> None:
+        lo = self.explore_range[0]
+        self.explore_range = (lo, hi)
+        self.tuner.grid = np.linspace(lo, hi, int(round((hi - lo) * 6.0 / self.explore_width)) + 1)
 
     # -- learning from the record --------------------------------------------------------------
     def _samples(self, rec: Mapping[str, np.ndarray], first: int = 0
@@ -501,6 +527,7 @@ class AdaptiveESAC(Frozen):
                            "demand": self.demand, "conv": list(self.conv),
                            "tuner": self.tuner.state(), "deployed_at": self.deployed_at,
                            "shipped_runs": self.shipped_runs,
+                           "explore_top": self.explore_range[1],
                            "previous": None if self.previous is None else
                            [self.previous[0], self.previous[2]]}).encode()
 
@@ -512,6 +539,8 @@ class AdaptiveESAC(Frozen):
         self.shipped_runs = bool(s.get("shipped_runs", self.model_version == f"{self.name}-v0"))
         self.conv = tuple(float(v) for v in s["conv"])
         self.tuner.restore(s["tuner"])
+        if "explore_top" in s:
+            self._set_top(float(s["explore_top"]))
         self.version = self._version()
         if not self.shipped_runs:  # (a rollback runs the shipped model, loaded already)
             self.policy.predictor.net = self._recorded(record, run_id, self.model_version)

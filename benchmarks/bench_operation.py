@@ -49,6 +49,9 @@ def main() -> None:
                    help="esac-adaptive: regular strokes a fine-tuned model is on probation for "
                         "(3 stalls there: the model before it runs again; default the "
                         "controller's, 50; 0: none)")
+    p.add_argument("--explore-max", type=float, default=None,
+                   help="esac-adaptive: the largest time demand its explored range grows to, "
+                        "e.g. 1.2 (default: the range, +0 to +30 %%, never grows)")
     p.add_argument("--rig", metavar="FILE", help="the operated rig (a rig file; default the "
                    "thesis rig): runs SCENARIO@RIG at its supply and payload")
     p.add_argument("--rig-name", metavar="NAME", help="its name (default the file's stem)")
@@ -77,7 +80,8 @@ def main() -> None:
     for sc in args.scenarios.split(","):
         for c in ctrls:
             opts = {k: v for k, v in (("rollback_after", args.rollback_after),
-                                      ("probation", args.probation)) if v is not None}
+                                      ("probation", args.probation),
+                                      ("explore_max", args.explore_max)) if v is not None}
             opts = opts if opts and c.startswith("esac-adaptive=") else None
             ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
                                  options=opts, rig=args.rig, rig_name=args.rig_name)

@@ -809,6 +809,41 @@ def test_a_fine_tuned_model_that_stalls_on_probation_is_withdrawn(tiny_esac):
         AdaptiveESAC(f"esac-adaptive={model}", env, probation=10, probation_stalls=0)
     assert make_controller(f"esac-adaptive={model}", env).config()["probation"] == 50
 
+
+def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esac):
+    """With ``explore_max``, the tuned demand at the range's top step widens the range by its
+    first width (the tuner's grid keeping its 0.05 step) up to ``explore_max``; below it, or by
+    default, nothing grows; a checkpoint carries the grown range."""
+    from agents.adaptive import AdaptiveESAC
+
+    model = tiny_esac[0]
+    env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    c = AdaptiveESAC(f"esac-adaptive={model}", env, explore_max=1.2)
+    c.demand = 0.2
+    c._grow()
+    assert c.explore_range == (0.0, 0.3) and c.tuner.grid.size == 7
+    c.demand = 0.25
+    c._grow()
+    assert c.explore_range == (0.0, 0.6)
+    np.testing.assert_allclose(c.tuner.grid, np.arange(13) * 0.05, atol=1e-12)
+    _, flags = c.plan(np.arange(1, 2001))
+    drawn = c._planned[flags["explore"]]
+    assert drawn.max() > 0.5 and drawn.min() >= 0.0 and (c._planned[~flags["explore"]] == 0.25).all()
+    for _ in range(5):
+        c.demand = c.explore_range[1]
+        c._grow()
+    assert c.explore_range == (0.0, 1.2) and c.tuner.grid.size == 25  # capped at explore_max
+    c2 = AdaptiveESAC(f"esac-adaptive={model}", env, explore_max=1.2)
+    c2.restore(c.state(), None, "x")
+    assert c2.explore_range == (0.0, 1.2) and c2.tuner.grid.size == 25
+    fixed = AdaptiveESAC(f"esac-adaptive={model}", env)
+    assert fixed.config()["explore_max"] == 0.3
+    fixed.demand = 0.3
+    fixed._grow()
+    assert fixed.explore_range == (0.0, 0.3)
+    with pytest.raises(ValueError, match="explore_max"):
+        AdaptiveESAC(f"esac-adaptive={model}", env, explore_max=0.2)
+
 # -- the user's rig ----------------------------------------------------------------------------
 def _my_rig(tmp_path: Path) -> Path:
     """A rig file of another cylinder set-up: a smaller dead volume, 4 bar and 15 kg."""
