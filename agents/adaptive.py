@@ -439,17 +439,25 @@ class AdaptiveESAC(Frozen):
         own = ~rec["reference"].astype(bool)
         if own.sum() < n or cut[own][-n:].any():
             return []
+        return self._take_back(self.shipped, True, stroke, "rollback",
+                               {"to": f"{self.name}-v0",
+                                "reason": f"no cut in the last {n} strokes"})
+
+    def _take_back(self, net: Any, shipped: bool, stroke: int, kind: str,
+                   detail: dict[str, Any]) -> list[dict[str, Any]]:
+        """Run ``net`` again (the shipped model if ``shipped``) from ``stroke`` as a new
+        version, with no model on probation; returns its row of the record's ``models``."""
         self.generation += 1
-        self.previous = None  # (no probation for the shipped model)
+        self.previous = None
         version = f"{self.name}-v{self.generation}"
-        self.policy.predictor.net = self.shipped
-        self.shipped = copy.deepcopy(self.shipped)  # (kept apart from the running net)
-        self.model_version, self.deployed_at, self.shipped_runs = version, stroke, True
+        self.policy.predictor.net = net
+        if shipped:
+            self.shipped = copy.deepcopy(net)  # (kept apart from the running net)
+        self.model_version, self.deployed_at, self.shipped_runs = version, stroke, shipped
         self.version = self._version()
-        return [{"version": version, "stroke": stroke, "kind": "rollback", "deployed": True,
-                 "score_new": None, "score_running": None,
-                 "detail": {"to": f"{self.name}-v0", "reason": f"no cut in the last {n} strokes"},
-                 "blob": _net_bytes(self.policy.predictor.net, self.policy)}]
+        return [{"version": version, "stroke": stroke, "kind": kind, "deployed": True,
+                 "score_new": None, "score_running": None, "detail": detail,
+                 "blob": _net_bytes(net, self.policy)}]
 
     def _probation(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
         """The model replaced by the running one again if :attr:`probation_stalls` of the running
@@ -466,20 +474,10 @@ class AdaptiveESAC(Frozen):
                 self.previous = None  # passed
             return []
         version, net, shipped = self.previous
-        self.previous = None
-        self.generation += 1
-        new = f"{self.name}-v{self.generation}"
-        self.policy.predictor.net = net
-        if shipped:
-            self.shipped = copy.deepcopy(net)  # (kept apart from the running net)
-        failed = self.model_version
-        self.model_version, self.deployed_at, self.shipped_runs = new, stroke, shipped
-        self.version = self._version()
-        return [{"version": new, "stroke": stroke, "kind": "withdrawn", "deployed": True,
-                 "score_new": None, "score_running": None,
-                 "detail": {"to": version, "withdrawn": failed, "reason":
-                            f"{stalls} of its first {self.probation} regular strokes stalled"},
-                 "blob": _net_bytes(net, self.policy)}]
+        return self._take_back(net, shipped, stroke, "withdrawn",
+                               {"to": version, "withdrawn": self.model_version, "reason":
+                                f"{stalls} of its first {self.probation} regular strokes "
+                                f"stalled"})
 
     def adapt(self, record: Any, run_id: str, stroke: int) -> list[dict[str, Any]]:
         back = self._probation(record, run_id, stroke) or self._rollback(record, run_id, stroke)

@@ -206,7 +206,7 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
         run = rec.run(run_id)
         if run is None:
             raise ValueError(f"no run {run_id!r} in {db}")
-        rig = run_rig(run["config"]) if (run["config"].get("env") or {}).get("rig") else None
+        rig = run_rig(run["config"])  # None: the thesis rig
         n = int(rec.con.execute("SELECT max(stroke) + 1 FROM strokes WHERE run_id = ?",
                                 [run_id]).fetchone()[0] or 0)
         cps = [c for c in range(every, n + 1, every)

@@ -287,13 +287,12 @@ def _py(v: Any) -> Any:
 
 
 def run_rig(config: Mapping[str, Any] | None) -> Any:
-    """The rig a run operated (from its recorded configuration): the thesis rig unless the run
-    names one (``pneugym operate --rig``)."""
-    from ..params import RigParams
+    """The rig a run operated (from its recorded configuration; ``pneugym operate --rig``), or
+    None for the thesis rig."""
     from ..rigfile import as_rig
 
     rig = ((config or {}).get("env") or {}).get("rig")
-    return RigParams() if rig is None else as_rig(rig, "the run's recorded rig")
+    return None if rig is None else as_rig(rig, "the run's recorded rig")
 
 
 def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
@@ -304,11 +303,12 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
     (thesis Fig. 3.6; the format states the delay itself), the load and supply each stroke's),
     e.g. for the discrepancy workflow."""
     from ..data import FORMAT, MeasuredRun, write_run
+    from ..params import RigParams
 
     run = rec.run(run_id)
     if run is None:
         raise ValueError(f"no run {run_id!r} in {rec.path}")
-    rig = run_rig(run["config"])
+    rig = run_rig(run["config"]) or RigParams()
     last = 2**62 if last is None else last
     meta = rec.frame("SELECT s.stroke, s.supply_setpoint_pa, t.load_mass_kg, s.cutoff_time_s "
                      "FROM strokes s JOIN truth t ON t.scenario = ? AND t.seed = ? AND "
