@@ -34,8 +34,8 @@ from .discrepancy.candidates import CANDIDATES, FitParam, apply
 from .discrepancy.fit import Executor, Job, Problem, fixed_step, solve
 from .discrepancy.prepare import prepare
 from .discrepancy.residuals import estimate_noise, nrmse
-from .discrepancy.stats import f_test, inflation
-from .params import RigParams
+from .discrepancy.stats import FORM_DELTA, f_test, form_delta, inflation
+from .params import LINE_MODELS, RigParams
 
 FORMAT = "pneugym-commissioning/1"
 #: samples per run the fit uses (longer runs are block-averaged, as in the discrepancy workflow)
@@ -45,16 +45,9 @@ MAX_SAMPLES = 1500
 #: fit that ends on this cap goes on with the full bounds and their smaller substep
 FAST_AREA_FACTOR = 2.0
 AREAS = ("valve.area_m2", "valve.exhaust_area_m2", "cylinder.port_area_m2")
-#: the supply-line models a fit tries (pneugym.params.LineParams.model)
-LINE_MODELS = ("fd", "lumped")
 #: the orifice laws a fit may try (pneugym.params.ValveParams.flow_model; ``orifice_models``):
 #: each line model's best fit with the stated law is fitted again, from there, with the others
 ORIFICE_MODELS = ("thesis", "iso6358")
-#: another form's best fit (line model, orifice law) is kept beside the best
-#: (:attr:`Commissioned.alternatives`, named in the report, a plausible rig on request) when
-#: ``N_eff ln(SSR_form / SSR_best) < FORM_DELTA``: its Akaike weight is over 5 % of the best's,
-#: so the strokes cannot tell the two apart
-FORM_DELTA = 6.0
 #: the rise of the driving-port pressure [Pa] that marks the valve's opening (the delay's guess)
 RISE_PA = 5e3
 
@@ -384,7 +377,7 @@ def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, li
             continue
         k = min((i for i, f in enumerate(which) if f == form), key=lambda i: results[i][1])
         ssr = results[k][1]
-        delta = n_eff * math.log(max(ssr, 1e-300) / max(ssr_best, 1e-300))
+        delta = form_delta(ssr, ssr_best, n_eff)
         if delta < FORM_DELTA:  # (a failed fit's inf / nan is not)
             p = Problem(prepared, jobs[k].bases, sigma, jobs[k].params)
             rigs.append(apply(jobs[k].bases[0], p.params, p.values(results[k][0])))

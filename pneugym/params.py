@@ -204,6 +204,10 @@ class CylinderParams:
         return self.dead_volume_m3 if self.dead_volume_rod_m3 is None else self.dead_volume_rod_m3
 
 
+#: the supply-line models (:attr:`LineParams.model`)
+LINE_MODELS = ("fd", "lumped")
+
+
 @dataclass(frozen=True)
 class LineParams:
     """Supply line between the main valve and the driving port (PU tube, ID 5 mm; thesis 4.7).
@@ -226,7 +230,7 @@ class LineParams:
         _check(self, "n_cells", isinstance(self.n_cells, numbers.Integral) and 1 <= self.n_cells <= 4096,
                "an int in [1, 4096]")
         object.__setattr__(self, "n_cells", int(self.n_cells))
-        _check(self, "model", self.model in ("fd", "lumped"), "'fd' or 'lumped'")
+        _check(self, "model", self.model in LINE_MODELS, "'fd' or 'lumped'")
         _check(self, "artificial_viscosity", 0.0 <= self.artificial_viscosity <= 10.0, "in [0, 10]")
         _plausible(self, "length_m", 100.0, "mm given as m?")
         _plausible(self, "diameter_m", 0.1, "mm given as m? (a 5 mm tube is 0.005 m)")

@@ -51,7 +51,7 @@ from pneugym.discrepancy.prepare import (
 )
 from pneugym.discrepancy.residuals import PHASES, RunPhases, estimate_noise, replay
 from pneugym.discrepancy.stats import ar_whitener, f_test, lr_test, standard_errors, whiten
-from pneugym.discrepancy.workflow import CandidateResult
+from pneugym.discrepancy.workflow import LINE_DELTA, CandidateResult
 from pneugym.plant import SimulationError
 
 FAST = {"n_starts": 2, "n_probe": 6, "max_nfev": 25, "seed": 0, "n_jobs": 1}
@@ -185,6 +185,14 @@ def test_bad_settings_are_refused():
         Discrepancy(calibrate_also=["valve.delay_scale"])
     d = Discrepancy(["leakage"], calibrate="basic", calibrate_also=valve)
     assert d.config()["calibrate_also"] == ["valve.delay_scale"]
+    # the line models to try
+    with pytest.raises(ValueError, match="unknown line model 'pipe'.*'fd', 'lumped'"):
+        Discrepancy(line_models=("fd", "pipe"))
+    for bad in ("lumped", ()):
+        with pytest.raises(ValueError, match="line_models.*sequence"):
+            Discrepancy(line_models=bad)
+    assert Discrepancy(line_models=["lumped", "fd", "lumped"]).config()["line_models"] == ["lumped", "fd"]
+    assert Discrepancy().config()["line_models"] is None
 
 
 # -- phases, noise, NRMSE ---------------------------------------------------------------------------
@@ -383,6 +391,54 @@ def test_autoregressive_discrepancy_term_on_a_rig_of_another_form(tmp_path):
     assert (tmp_path / "candidates.png").stat().st_size > 10_000
 
 
+def test_the_line_model_is_chosen_by_the_runs(tmp_path):
+    """``line_models=("fd", "lumped")``: a 20 ms transducer lag on a rig whose supply line is
+    lumped (4 volumes) and whose JSON states the default finite-difference line. On the stated
+    line the lag is hidden behind the line's structural error (the workflow says `none`, as the
+    default does, to the last digit); run again on the lumped line it is named, that model fits
+    clearly better, and the report and the updated model state the lumped line."""
+    known = thesis_rig(2.5)
+    truth = perturbed(known, np.random.default_rng(3), sensor_lag_s=0.02).with_(
+        line={"model": "lumped", "n_cells": 4})
+    runs = thesis_protocol(truth, known, t_end=2.0, seed=4)
+    cands = ["sensor_lag"]
+    d0 = Discrepancy(cands, **FAST).fit(runs)
+    d = Discrepancy(cands, line_models=("fd", "lumped"), **FAST).fit(runs)
+    fd, lumped = d.line_fits_["fd"], d.line_fits_["lumped"]
+    assert list(d.line_fits_) == ["fd", "lumped"]  # the stated line first
+    # the stated line's run is the default run
+    assert fd["named"] == d0.named_effect_ and fd["gap_after"] == d0.gap_after
+    assert d0.line_model_ == "fd" and d0.line_fits_ == {}
+    assert d.line_model_ == "lumped" and lumped["aic_above_best"] == 0.0
+    assert fd["aic_above_best"] >= LINE_DELTA
+    assert d.named_effect_ == "sensor_lag", d.summary()
+    assert d.candidates_[0].effect["sensor_lag_s"] == pytest.approx(0.02, rel=0.25)
+    assert d.gap_after < 0.75 * d0.gap_after
+    assert d.gap_before == d0.gap_before  # the nominal model is the JSON's, as stated
+    assert d.updated_model.line.model == "lumped" and d.updated_rig(runs[0]).line.model == "lumped"
+    assert d.score(runs) == pytest.approx(d.gap_after)
+    assert "supply line: lumped (each model tried: fd -> " in d.summary()
+    d.report(tmp_path)
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["line_model"] == "lumped" and set(rep["line_fits"]) == {"fd", "lumped"}
+    assert rep["config"]["line_models"] == ["fd", "lumped"]
+    assert "**`lumped` fits clearly better than the stated `fd`**" in (tmp_path / "report.md").read_text()
+    assert json.loads((tmp_path / "updated_model.json").read_text())["line"]["model"] == "lumped"
+
+
+def test_the_stated_line_stays_when_it_is_right(protocol_runs):
+    """Runs of the model's own form: the lumped line fits no better, the stated result stands."""
+    known, _ = protocol_runs
+    truth = perturbed(known, np.random.default_rng(8))
+    runs = thesis_protocol(truth, known, t_end=2.0, seed=9)
+    d0 = Discrepancy(["sensor_lag"], **FAST).fit(runs)
+    d = Discrepancy(["sensor_lag"], line_models=("lumped", "fd"), **FAST).fit(runs)
+    assert d.line_model_ == "fd" and d.line_fits_["lumped"]["aic_above_best"] > 6.0
+    assert d.named_effect_ == d0.named_effect_ == "none"
+    assert d.fitted_params_ == d0.fitted_params_ and d.gap_after == d0.gap_after
+    assert d.updated_model.line.model == "fd"
+
+
 def test_expansion_index_puzzle(leak_case):
     known, _, runs, d, _ = leak_case
     early = runs[2]
@@ -452,6 +508,9 @@ def test_cli_refuses_bad_runs(tmp_path, capsys):
     (tmp_path / "r.csv").write_text("t,valve,x,p_drive\n0,1,0,101325\n")
     assert main([str(tmp_path / "r.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "r.json" in capsys.readouterr().err
+    assert main(["--hold", str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"),
+                 "--line-models", "fd", "lumped"]) == 2
+    assert "--line-models is for extension strokes" in capsys.readouterr().err
 
 
 # -- reports written as a whole; the output folder checked before the fit -------------------------
@@ -802,3 +861,33 @@ def test_each_runs_own_friction_and_a_calibration_on_it():
     assert wf.named_effect_ == "none", wf.decision_
     assert not Discrepancy(["dead_volume"], calibrate="basic", holdout=None, **quick) \
         .fit(runs[:1]).relative_friction_
+
+
+def test_the_bench_reads_both_line_models_from_one_run(capsys):
+    """``bench_discrepancy.py --line-models``: every case records each line model's answer, so
+    one run gives the matrix of the line chosen and the stated line's (the default workflow's)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_discrepancy.py"
+    spec = importlib.util.spec_from_file_location("bench_discrepancy", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+
+    def row(truth, fd, lumped, chosen):
+        fits = {"fd": {"named": fd, "gap_calibrated": 0.02, "gap_after": 0.01},
+                "lumped": {"named": lumped, "gap_calibrated": 0.015, "gap_after": 0.004}}
+        return {"truth": truth, "named": fits[chosen]["named"], "gap_before": 0.1,
+                "gap_calibrated": fits[chosen]["gap_calibrated"], "gap_after": fits[chosen]["gap_after"],
+                "gap_reduction": 1 - fits[chosen]["gap_after"] / 0.1,
+                "gap_reduction_vs_calibrated": 1 - fits[chosen]["gap_after"] / fits[chosen]["gap_calibrated"],
+                "noise_floor": 0.002, "wall_s": 1.0, "line_model": chosen, "line_fits": fits}
+
+    rows = [row("leakage", "none", "leakage", "lumped"), row("none", "none", "sensor_lag", "fd"),
+            row("none", "none", "sensor_lag", "lumped")]
+    out = bench.summarise(rows)
+    assert out["name_accuracy"] == 1.0 and out["control_accuracy"] == 0.5
+    assert out["line_model_chosen"] == {"lumped": 2, "fd": 1}
+    stated = out["stated_line_only"]
+    assert stated["name_accuracy"] == 0.0 and stated["control_accuracy"] == 1.0
+    assert stated["confusion"]["leakage"]["none"] == 1
+    assert "the same cases on the stated line only" in capsys.readouterr().out

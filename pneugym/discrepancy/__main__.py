@@ -16,6 +16,7 @@ import time
 
 from ..data import MeasurementFormatError
 from ..outputs import OutputError, check_output_dir
+from ..params import LINE_MODELS
 from ..plant import SimulationError
 from .candidates import CANDIDATES
 from .prepare import MAX_SAMPLES
@@ -62,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="nominal parameters calibrated first: extended (default: discharge "
                          "coefficient, friction, valve delay, exhaust and port areas, cushion "
                          "length) or basic (discharge coefficient and friction)")
+    ap.add_argument("--line-models", nargs="+", default=None, choices=LINE_MODELS, metavar="MODEL",
+                    help="supply-line models the calibration tries (fd, lumped); another than the "
+                         "runs' stated one is kept only if it fits clearly better (default: the "
+                         "stated one only)")
     ap.add_argument("--hold", action="store_true",
                     help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
@@ -87,6 +92,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if a.hold:
+        if a.line_models:
+            print("error: --line-models is for extension strokes; a hold test has no supply line "
+                  "to model (the valve is closed)", file=sys.stderr)
+            return 2
         return _hold(a, out)
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
     holdout = None if a.holdout.lower() == "none" else a.holdout
@@ -95,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
                         min_improvement=a.min_improvement, seed=a.seed, n_jobs=a.jobs,
                         progress=not a.quiet, max_samples=a.max_samples, calibrate=a.calibrate,
                         discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term,
-                        **_starts(a))
+                        line_models=a.line_models, **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -137,6 +137,9 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "candidates": [c.to_json() for c in d.candidates_],
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
+        # the supply-line model the calibration kept, and each tried model's calibrated SSR
+        "line_model": getattr(d, "line_model_", None),
+        "line_fits": getattr(d, "line_fits_", {}),
         # these are factors on the value each run's JSON states, not values in the field's unit
         "relative_params": [p.path for p in d.nominal_params_ if p.relative],
         "nominal_params": {p.path: float(v) for p, v in zip(
@@ -206,6 +209,15 @@ def markdown(rep: dict[str, Any]) -> str:
                f"{rep['suggested_experiment']}"), ""]
     elif rep.get("suggested_experiment"):
         L += [f"Suggested experiment (the evidence is short): {rep['suggested_experiment']}", ""]
+    fits = rep.get("line_fits") or {}
+    if len(fits) > 1:
+        stated, kept = next(iter(fits)), rep["line_model"]
+        tried = "; ".join(f"`{m}`: named `{v['named']}`, NRMSE {v['gap_after']:.4g}, Akaike "
+                          f"{v['aic_above_best']:+.1f} over the best" for m, v in fits.items())
+        verdict = (f"the stated `{stated}` kept (no other fits clearly better)" if kept == stated
+                   else f"**`{kept}` fits clearly better than the stated `{stated}`** and is the "
+                        f"updated model's line")
+        L += [f"Supply line: the workflow ran on each line model ({tried}); {verdict}.", ""]
     g = rep["gaps"]
     L += ["## Gap (NRMSE)", "",
           (f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "

@@ -47,6 +47,19 @@ def inflation(segments: Sequence[np.ndarray]) -> tuple[float, float]:
     return kappa, float(ns.sum() / kappa)
 
 
+#: Akaike margin between two model forms with the same parameters: a form fits clearly better
+#: than another when ``N_eff ln(SSR_other / SSR_form) >= FORM_DELTA`` (the other's Akaike
+#: weight is then under 5 % of its own); closer, the runs cannot tell the two apart
+FORM_DELTA = 6.0
+
+
+def form_delta(ssr: float, ssr_best: float, n_eff: float) -> float:
+    """``N_eff ln(SSR / SSR_best)``: how much worse a form's fit is than the best's (Akaike
+    difference at equal parameter counts; a failed fit's inf / nan compares as inf)."""
+    d = n_eff * np.log(max(ssr, 1e-300) / max(ssr_best, 1e-300))
+    return float(d) if np.isfinite(d) else float("inf")
+
+
 def f_test(ssr0: float, ssr1: float, p_extra: int, p_total: int, n_eff: float) -> tuple[float, float]:
     """Nested-model F-test with an effective sample size: ``F = (SSR0 - SSR1)/p / (SSR1/(N_eff - P))``.
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..data import MeasuredRun, MeasurementFormatError, read_runs
 from ..outputs import OutputError, check_output_dir
-from ..params import RigParams
+from ..params import LINE_MODELS, RigParams
 from ..plant import SimulationError
 from .candidates import (
     CANDIDATES,
@@ -65,6 +65,12 @@ from .residuals import (
 from .stats import ar_whitener, f_test, inflation, lr_test, separation, standard_errors, whiten
 
 MODELS = ("nominal", "calibrated", "updated")
+#: Akaike margin by which another supply-line model's updated model must beat the stated line's
+#: before it replaces it (``line_models``). Chosen on a mismatched-form set (offset 100000):
+#: there the one false switch won by 10.9 and the two that named a missed effect by 51 and 72
+#: (docs/discrepancy.md); commission's FORM_DELTA (6) let a finite-difference rig's control
+#: name a sensor lag on the lumped line
+LINE_DELTA = 20.0
 #: highest order of the autoregressive discrepancy term (BIC picks the order per segment)
 AR_MAX_ORDER = 5
 #: the material checks' default share, by discrepancy term: of the whole misfit without one,
@@ -166,6 +172,14 @@ class Discrepancy:
         (:class:`FitParam`), e.g. a change named in an earlier pass of the condition monitor,
         fitted again beside every candidate so that a candidate gets no credit for what the
         earlier change explains.
+    line_models : the supply-line models (:data:`~pneugym.params.LINE_MODELS`) to try.
+        ``None`` (default): the one the runs state. With ``("fd", "lumped")`` the whole
+        workflow runs once per model, the stated one first, and the stated model's result
+        stands unless another's updated model fits the fitted runs clearly better (Akaike,
+        :data:`LINE_DELTA`; :meth:`_choose_form`); the report and
+        ``updated_model.json`` then state that line (:attr:`line_model_`, every model's fit in
+        :attr:`line_fits_`). A rig file rarely says how its line behaves, and a line of the
+        wrong form leaves a structural error that hides small effects (docs/discrepancy.md).
     discrepancy_term : the structural error's model the tests read the residuals through.
         ``None`` (default): no term; the residuals' autocorrelation deflates their effective
         sample size (:func:`~pneugym.discrepancy.stats.inflation`). ``"ar"``: an
@@ -184,7 +198,8 @@ class Discrepancy:
                  min_improvement: float | None = None, z_min: float = 3.0, seed: int = 0,
                  n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES,
                  calibrate: str = "extended", discrepancy_term: str | None = None,
-                 calibrate_also: Iterable[FitParam] = ()):
+                 calibrate_also: Iterable[FitParam] = (),
+                 line_models: Sequence[str] | None = None):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -205,6 +220,16 @@ class Discrepancy:
                 raise ValueError(f"candidate {c.name!r} fits {', '.join(sorted(both))}, which the "
                                  f"{calibrate} calibration frees already; use calibrate='basic'")
         self.calibrate = calibrate
+        if line_models is not None:
+            if isinstance(line_models, str) or not line_models:
+                raise ValueError(f"Discrepancy line_models = {line_models!r}: give a sequence of "
+                                 f"line models from {LINE_MODELS}, or None")
+            bad = [m for m in line_models if m not in LINE_MODELS]
+            if bad:
+                raise ValueError(f"Discrepancy line_models: unknown line model {bad[0]!r}; "
+                                 f"choose from {LINE_MODELS}")
+            line_models = tuple(dict.fromkeys(line_models))
+        self.line_models = line_models
         self.calibrate_also = tuple(calibrate_also)
         if not all(isinstance(q, FitParam) for q in self.calibrate_also):
             raise ValueError("Discrepancy calibrate_also: give FitParam objects")
@@ -246,20 +271,64 @@ class Discrepancy:
                 "alpha": self.alpha, "min_improvement": self.min_improvement, "z_min": self.z_min,
                 "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples,
                 "calibrate": self.calibrate, "discrepancy_term": self.discrepancy_term,
-                "calibrate_also": [q.path for q in self.calibrate_also]}
+                "calibrate_also": [q.path for q in self.calibrate_also],
+                "line_models": None if self.line_models is None else list(self.line_models)}
 
     def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
         """Run the workflow on measured runs (or paths to runs / folders of runs).
 
         Long runs are windowed and block-averaged first (:attr:`preparation_` says how); the
-        attributes ``runs_``, ``sims_``, ``gaps_`` ... refer to the runs as prepared."""
+        attributes ``runs_``, ``sims_``, ``gaps_`` ... refer to the runs as prepared. With
+        ``line_models``, the whole workflow runs once per line model and the stated model's
+        result stands unless another's updated model fits clearly better (:meth:`_choose_form`)."""
         t0 = time.perf_counter()
         runs = list(runs)
         if runs and not isinstance(runs[0], MeasuredRun):
             runs = read_runs(runs, base)
         if not runs:
             raise ValueError("no runs given")
+        self._fit_form(runs, base, None, t0)
+        stated = self.line_model_
+        others = [m for m in (self.line_models or ()) if m != stated]
+        if not others or self.no_gap_:
+            return self
+        results = {stated: dict(self.__dict__)}
+        for m in others:
+            self._fit_form(runs, base, m, t0)
+            results[m] = dict(self.__dict__)
+        return self._choose_form(results, t0)
+
+    def _choose_form(self, results: dict[str, dict[str, Any]], t0: float) -> Discrepancy:
+        """Keep the stated line model's result unless another model's updated model fits the
+        fitted runs clearly better: its Akaike criterion, on the stated result's effective
+        sample size, lower by :data:`LINE_DELTA` (``N_eff ln SSR + 2 k``, k the fitted
+        parameters)."""
+        stated = next(iter(results))
+        n_eff = results[stated]["_updated_fit"][2]
+        aic = {m: n_eff * np.log(max(r["_updated_fit"][0], 1e-300)) + 2.0 * r["_updated_fit"][1]
+               for m, r in results.items()}
+        best = min(results, key=lambda m: aic[m])
+        chosen = best if aic[stated] - aic[best] >= LINE_DELTA else stated
+        self.__dict__.update(results[chosen])
+        self.line_fits_ = {m: {"named": r["named_effect_"], "ssr_fit": float(r["_updated_fit"][0]),
+                               "n_params": int(r["_updated_fit"][1]),
+                               "aic_above_best": float(aic[m] - aic[best]),
+                               "gap_calibrated": float(r["gaps_"]["calibrated"]["all"]["overall"]),
+                               "gap_after": float(r["gaps_"]["updated"]["all"]["overall"])}
+                           for m, r in results.items()}
+        self.wall_time_s_ = time.perf_counter() - t0
+        return self
+
+    def _fit_form(self, runs: list[MeasuredRun], base: RigParams | None, line_model: str | None,
+                  t0: float) -> Discrepancy:
+        """The workflow on one line model (``None``: the one the runs state)."""
         self.rigs_ = [r.rig(base) for r in runs]
+        # the rigs in the model's form: the runs' own, or with the line model tried
+        self.model_rigs_ = (self.rigs_ if line_model is None else
+                            [g.with_(line={"model": line_model}) for g in self.rigs_])
+        self.line_model_ = self.model_rigs_[0].line.model
+        self.line_fits_: dict[str, dict[str, Any]] = {}
+        self.no_gap_ = False
         self.whiteners_: dict[tuple[str, str], np.ndarray] | None = None
         runs, self.preparation_ = prepare(runs, self.rigs_, self.max_samples)
         self.runs_ = runs
@@ -278,7 +347,7 @@ class Discrepancy:
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
         # use the rigs as the plant builds them (automatic substep)
-        self._fixed = [_for_run(r, fixed_step, g, nom) for r, g in zip(runs, self.rigs_)]
+        self._fixed = [_for_run(r, fixed_step, g, nom) for r, g in zip(runs, self.model_rigs_)]
         fit_idx = [i for i, r in enumerate(runs) if r.name != hold]
         fit_bases = [self._fixed[i] for i in fit_idx]
         rng = np.random.default_rng(self.seed)
@@ -298,12 +367,12 @@ class Discrepancy:
                 return self._finish(runs, nom, json_vals, t0)
             prob = Problem(self.fit_runs_, fit_bases, self.sigma_, nom)
             starts = self._starts(prob, [json_vals], [nom], rng)
-            bar.set_description("calibrating nominal parameters")
+            bar.set_description("calibrating nominal parameters" + self._form_text())
             res = executor.map(solve, [Job(self.fit_runs_, fit_bases, self.sigma_, nom, s, self.max_nfev)
                                        for s in starts], bar.update)
             self.calibrated_: FitResult = best_of(prob, res)
             cal_vals = self.calibrated_.values
-            self.sims_["calibrated"] = Problem(runs, self.rigs_, self.sigma_, nom).simulate(cal_vals)
+            self.sims_["calibrated"] = Problem(runs, self.model_rigs_, self.sigma_, nom).simulate(cal_vals)
             seg0 = Problem(runs, self._fixed, self.sigma_, nom).segments(cal_vals)
             # the structural error's model, fitted once on the calibrated nominal model
             self.whiteners_ = ({(n, c): ar_whitener(s, AR_MAX_ORDER) for n, c, s in seg0}
@@ -312,7 +381,7 @@ class Discrepancy:
             self.findings_ = {m: localise(runs, self.sims_[m], self.phases_, self.sigma_)
                               for m in ("nominal", "calibrated")}
             # (4) candidates
-            bar.set_description("fitting candidate effects")
+            bar.set_description("fitting candidate effects" + self._form_text())
             jobs, slices, problems = [], [], []
             for cand in self.candidates:
                 params = nom + cand.params
@@ -332,6 +401,10 @@ class Discrepancy:
         # (5) decision
         self.candidates_ = sorted(results, key=lambda c: -c.score)
         return self._finish(runs, nom, cal_vals, t0)
+
+    def _form_text(self) -> str:
+        """For the progress bar: the line model being tried, when several are."""
+        return f" ({self.line_model_} line)" if self.line_models else ""
 
     def _no_gap(self, runs: list[MeasuredRun], nom: tuple[FitParam, ...], json_vals: np.ndarray) -> None:
         """No gap: the calibrated model is the nominal one, no candidate is fitted."""
@@ -362,8 +435,14 @@ class Discrepancy:
             self.updated_rigs_ = list(self.rigs_)
             self.sims_["updated"] = self.sims_["nominal"]
         else:
-            self.updated_rigs_ = [_for_run(r, apply, g, params, vals) for r, g in zip(runs, self.rigs_)]
+            self.updated_rigs_ = [_for_run(r, apply, g, params, vals) for r, g in zip(runs, self.model_rigs_)]
             self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
+        if self.line_models and not self.no_gap_:
+            # the updated model's fit (fitted runs, fixed substep) for the choice of line model
+            fit = {r.name for r in self.fit_runs_}
+            fixed = [g for r, g in zip(runs, self._fixed) if r.name in fit]
+            segs = [x for _, _, x in Problem(self.fit_runs_, fixed, self.sigma_, params).segments(vals)]
+            self._updated_fit = (_ssr(segs), len(params), inflation(segs)[1])
         self.gaps_ = {m: self._gaps(self.sims_[m]) for m in MODELS}
         self.findings_["updated"] = localise(runs, self.sims_["updated"], self.phases_, self.sigma_)
         self.noise_at_floor_ = noise_at_floor(self.sigma_)
@@ -656,7 +735,10 @@ class Discrepancy:
     def updated_rig(self, run: MeasuredRun, base: RigParams | None = None) -> RigParams:
         """The updated model at the operating point of any run (its JSON + the fitted values)."""
         params, vals = self._fitted
-        return apply(run.rig(base), params, vals)
+        rig = run.rig(base)
+        if rig.line.model != self.line_model_ and self.model_rigs_ is not self.rigs_:
+            rig = rig.with_(line={"model": self.line_model_})  # the workflow chose another
+        return apply(rig, params, vals)
 
     def prepared(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> list[MeasuredRun]:
         """``runs`` cut to their informative window and block-averaged as :meth:`fit` does
@@ -709,6 +791,10 @@ class Discrepancy:
                       f"({self.gap_reduction:+.1%} reduction)")),
                   "candidates (best first):" if self.candidates_ else
                   "candidates: none fitted (no gap to reduce)"]
+        if len(getattr(self, "line_fits_", {})) > 1:
+            tried = ", ".join(f"{m} -> {v['named']} (NRMSE {v['gap_after']:.4g})"
+                              for m, v in self.line_fits_.items())
+            lines.insert(-1, f"supply line: {self.line_model_} (each model tried: {tried})")
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
