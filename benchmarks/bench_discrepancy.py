@@ -255,8 +255,8 @@ def main(argv=None) -> int:
                     help="the workflow's model of the structural error (default none; ar writes "
                          "*_ar.json)")
     ap.add_argument("--line-models", nargs="+", default=None, choices=LINE_MODELS,
-                    help="supply-line models the calibration tries (default: the stated one; "
-                         "writes *_lines.json)")
+                    help="supply-line models the workflow runs on (default: the stated one; "
+                         "writes *_lines.json and also prints the stated line's matrix)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:

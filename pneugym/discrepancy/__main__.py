@@ -64,9 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "coefficient, friction, valve delay, exhaust and port areas, cushion "
                          "length) or basic (discharge coefficient and friction)")
     ap.add_argument("--line-models", nargs="+", default=None, choices=LINE_MODELS, metavar="MODEL",
-                    help="supply-line models the calibration tries (fd, lumped); another than the "
-                         "runs' stated one is kept only if it fits clearly better (default: the "
-                         "stated one only)")
+                    help="supply-line models to run the workflow on (fd, lumped); another than "
+                         "the runs' stated one is kept only if its updated model fits clearly "
+                         "better (default: the stated one only)")
     ap.add_argument("--hold", action="store_true",
                     help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "

@@ -137,7 +137,7 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "candidates": [c.to_json() for c in d.candidates_],
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
-        # the supply-line model the calibration kept, and each tried model's calibrated SSR
+        # the supply-line model kept, and each line model's answer and fit (line_models)
         "line_model": getattr(d, "line_model_", None),
         "line_fits": getattr(d, "line_fits_", {}),
         # these are factors on the value each run's JSON states, not values in the field's unit
