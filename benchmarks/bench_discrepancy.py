@@ -49,7 +49,7 @@ from pneugym.discrepancy.cases import FORM_RANGES, FORMS, PERTURB, RANGES, make_
 from pneugym.discrepancy.expansion import expansion_index  # noqa: E402
 from pneugym.discrepancy.friction import FrictionDiscrepancy  # noqa: E402
 from pneugym.parallel import add_arguments as add_parallel_arguments, run_tasks  # noqa: E402
-from pneugym.params import LINE_MODELS  # noqa: E402
+from pneugym.params import LINE_MODELS, ORIFICE_MODELS  # noqa: E402
 from pneugym.provenance import provenance  # noqa: E402
 
 EFFECTS = tuple(CANDIDATES)
@@ -71,7 +71,7 @@ def run_case(args) -> dict:
                           "valve": [truth.valve.flow_model, truth.valve.iso_b, truth.valve.linear_ratio,
                                     truth.valve.ramp_s, truth.valve_delay_s],
                           "cushion": [truth.cylinder.cushion_length_m, truth.cylinder.cushion_ramp_m]},
-            "line_model": d.line_model_, "line_fits": d.line_fits_,
+            "line_model": d.line_model_, "orifice_model": d.orifice_model_, "form_fits": d.form_fits_,
             "fitted": d.fitted_params_, "gap_before": d.gap_before, "gap_calibrated": cal,
             "gap_after": d.gap_after, "gap_reduction": d.gap_reduction,
             "gap_reduction_vs_calibrated": 1 - d.gap_after / cal,
@@ -152,25 +152,32 @@ def summarise(rows: list[dict]) -> dict:
         print(f"updated model's overall NRMSE over the noise floor when named right: median {q['median']:.1f}x, "
               f"max {q['max']:.1f}x; within 3x in {q['share_within_3x']:.0%}")
     print(f"workflow wall time per case: median {out['wall_s']['median']:.1f} s, max {out['wall_s']['max']:.1f} s")
-    if any(len(r.get("line_fits") or {}) > 1 for r in rows):
-        # --line-models: each case ran on every line model; the stated line's run is the
-        # default workflow's, so the same cases give its matrix too
-        print("\nthe same cases on the stated line only (the default workflow):")
-        out["stated_line_only"] = summarise([stated_line(r) for r in rows])
-        out["line_model_chosen"] = {m: sum(r["line_model"] == m for r in rows)
-                                    for m in dict.fromkeys(r["line_model"] for r in rows)}
+    if any(len(_fits(r)) > 1 for r in rows):
+        # --line-models / --orifice-models: each case ran on every model form; the stated
+        # form's run is the default workflow's, so the same cases give its matrix too
+        print("\nthe same cases on the stated form only (the default workflow):")
+        out["stated_form_only"] = summarise([stated_form(r) for r in rows])
+        kept = [next((m for m, v in _fits(r).items() if v.get("kept")), r.get("line_model"))
+                for r in rows]
+        out["form_chosen"] = {m: kept.count(m) for m in dict.fromkeys(kept)}
     return out
 
 
-def stated_line(row: dict) -> dict:
-    """A case's row as the workflow on the stated line alone gave it (``--line-models`` rows)."""
-    fits = row["line_fits"]
+def _fits(row: dict) -> dict:
+    """Every model form's answer of a case (``line_fits`` in results written before the
+    orifice laws were tried)."""
+    return row.get("form_fits") or row.get("line_fits") or {}
+
+
+def stated_form(row: dict) -> dict:
+    """A case's row as the workflow on the stated model form alone gave it."""
+    fits = _fits(row)
     first = fits[next(iter(fits))]
     cal = first["gap_calibrated"]
     return {**row, "named": first["named"], "gap_after": first["gap_after"], "gap_calibrated": cal,
             "gap_reduction": 1 - first["gap_after"] / row["gap_before"],
             "gap_reduction_vs_calibrated": 1 - first["gap_after"] / cal,
-            "line_fits": {}, "line_model": next(iter(fits))}
+            "form_fits": {}, "line_fits": {}}
 
 
 def run_real(kw: dict) -> dict:
@@ -257,13 +264,16 @@ def main(argv=None) -> int:
     ap.add_argument("--line-models", nargs="+", default=None, choices=LINE_MODELS,
                     help="supply-line models the workflow runs on (default: the stated one; "
                          "writes *_lines.json and also prints the stated line's matrix)")
+    ap.add_argument("--orifice-models", nargs="+", default=None, choices=ORIFICE_MODELS,
+                    help="orifice laws the workflow runs on, with each line model (default: the "
+                         "stated one; writes *_forms.json and also prints the stated form's matrix)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:
         a.cases, a.controls = 1, 2
     kw = dict(seed=0, n_jobs=a.jobs,
               discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term,
-              line_models=a.line_models)
+              line_models=a.line_models, orifice_models=a.orifice_models)
     only = set(a.only.split(","))
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
                             "form": a.form, "seed_offset": a.seed_offset,
@@ -284,7 +294,9 @@ def main(argv=None) -> int:
     name = "discrepancy.json" if a.form == "matched" else "discrepancy_mismatched.json"
     if a.discrepancy_term != "none":
         name = name.replace(".json", f"_{a.discrepancy_term}.json")
-    if a.line_models:
+    if a.orifice_models:
+        name = name.replace(".json", "_forms.json")
+    elif a.line_models:
         name = name.replace(".json", "_lines.json")
     (out / name).write_text(json.dumps(res, indent=2, default=float))
     print(f"\nwritten {out / name} ({res['total_wall_s']:.0f} s)")

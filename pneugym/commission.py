@@ -35,7 +35,7 @@ from .discrepancy.fit import Executor, Job, Problem, fixed_step, solve
 from .discrepancy.prepare import prepare
 from .discrepancy.residuals import estimate_noise, nrmse
 from .discrepancy.stats import FORM_DELTA, f_test, form_delta, inflation
-from .params import LINE_MODELS, RigParams
+from .params import LINE_MODELS, ORIFICE_MODELS, RigParams
 
 FORMAT = "pneugym-commissioning/1"
 #: samples per run the fit uses (longer runs are block-averaged, as in the discrepancy workflow)
@@ -45,9 +45,6 @@ MAX_SAMPLES = 1500
 #: fit that ends on this cap goes on with the full bounds and their smaller substep
 FAST_AREA_FACTOR = 2.0
 AREAS = ("valve.area_m2", "valve.exhaust_area_m2", "cylinder.port_area_m2")
-#: the orifice laws a fit may try (pneugym.params.ValveParams.flow_model; ``orifice_models``):
-#: each line model's best fit with the stated law is fitted again, from there, with the others
-ORIFICE_MODELS = ("thesis", "iso6358")
 #: the rise of the driving-port pressure [Pa] that marks the valve's opening (the delay's guess)
 RISE_PA = 5e3
 

@@ -206,6 +206,8 @@ class CylinderParams:
 
 #: the supply-line models (:attr:`LineParams.model`)
 LINE_MODELS = ("fd", "lumped")
+#: the orifice laws (:attr:`ValveParams.flow_model`)
+ORIFICE_MODELS = ("thesis", "iso6358")
 
 
 @dataclass(frozen=True)
@@ -286,7 +288,7 @@ class ValveParams:
         _plausible(self, "area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "exhaust_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "ramp_s", 1.0, "ms given as s? (10 ms = 0.01 s)")
-        _check(self, "flow_model", self.flow_model in ("thesis", "iso6358"), "'thesis' or 'iso6358'")
+        _check(self, "flow_model", self.flow_model in ORIFICE_MODELS, "'thesis' or 'iso6358'")
         _check(self, "iso_b", 0.0 <= self.iso_b < 1.0, "in [0, 1)")
         _check(self, "linear_ratio", 1e-4 <= self.linear_ratio <= 0.2, "in [1e-4, 0.2]")
 

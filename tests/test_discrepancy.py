@@ -193,6 +193,13 @@ def test_bad_settings_are_refused():
             Discrepancy(line_models=bad)
     assert Discrepancy(line_models=["lumped", "fd", "lumped"]).config()["line_models"] == ["lumped", "fd"]
     assert Discrepancy().config()["line_models"] is None
+    # the orifice laws to try
+    with pytest.raises(ValueError, match="unknown orifice law 'sharp'.*'thesis', 'iso6358'"):
+        Discrepancy(orifice_models=("thesis", "sharp"))
+    with pytest.raises(ValueError, match="orifice_models.*sequence"):
+        Discrepancy(orifice_models="iso6358")
+    assert Discrepancy(orifice_models=["iso6358", "thesis"]).config()["orifice_models"] == ["iso6358", "thesis"]
+    assert Discrepancy().config()["orifice_models"] is None
 
 
 # -- phases, noise, NRMSE ---------------------------------------------------------------------------
@@ -404,11 +411,12 @@ def test_the_line_model_is_chosen_by_the_runs(tmp_path):
     cands = ["sensor_lag"]
     d0 = Discrepancy(cands, **FAST).fit(runs)
     d = Discrepancy(cands, line_models=("fd", "lumped"), **FAST).fit(runs)
-    fd, lumped = d.line_fits_["fd"], d.line_fits_["lumped"]
-    assert list(d.line_fits_) == ["fd", "lumped"]  # the stated line first
+    fd, lumped = d.form_fits_["fd"], d.form_fits_["lumped"]
+    assert list(d.form_fits_) == ["fd", "lumped"]  # the stated line first
+    assert lumped["kept"] and not fd["kept"]
     # the stated line's run is the default run
     assert fd["named"] == d0.named_effect_ and fd["gap_after"] == d0.gap_after
-    assert d0.line_model_ == "fd" and d0.line_fits_ == {}
+    assert d0.line_model_ == "fd" and d0.form_fits_ == {}
     assert d.line_model_ == "lumped" and lumped["aic_above_best"] == 0.0
     assert fd["aic_above_best"] >= LINE_DELTA
     assert d.named_effect_ == "sensor_lag", d.summary()
@@ -417,13 +425,46 @@ def test_the_line_model_is_chosen_by_the_runs(tmp_path):
     assert d.gap_before == d0.gap_before  # the nominal model is the JSON's, as stated
     assert d.updated_model.line.model == "lumped" and d.updated_rig(runs[0]).line.model == "lumped"
     assert d.score(runs) == pytest.approx(d.gap_after)
-    assert "supply line: lumped (each model tried: fd -> " in d.summary()
+    assert "model form: lumped line, thesis law (each form tried: fd -> " in d.summary()
     d.report(tmp_path)
     rep = json.loads((tmp_path / "report.json").read_text())
-    assert rep["line_model"] == "lumped" and set(rep["line_fits"]) == {"fd", "lumped"}
+    assert rep["line_model"] == "lumped" and set(rep["form_fits"]) == {"fd", "lumped"}
+    assert rep["orifice_model"] == "thesis"
     assert rep["config"]["line_models"] == ["fd", "lumped"]
     assert "**`lumped` fits clearly better than the stated `fd`**" in (tmp_path / "report.md").read_text()
     assert json.loads((tmp_path / "updated_model.json").read_text())["line"]["model"] == "lumped"
+
+
+def test_the_orifice_law_is_chosen_by_the_runs(tmp_path):
+    """``orifice_models=("thesis", "iso6358")``: a rig whose valve follows ISO 6358 with a
+    critical ratio of 0.25 while its JSON states the thesis's law, with a hidden leak. The ISO
+    law fits clearly better, its critical ratio (freed, the JSON does not give it) is found,
+    the leak is named on it, and the updated model states the law; the stated law's run is
+    the default run to the last digit."""
+    known = thesis_rig(1.5)
+    truth = perturbed(known, np.random.default_rng(5), leak_drive_area_m2=3e-7).with_(
+        valve={"flow_model": "iso6358", "iso_b": 0.25})
+    runs = thesis_protocol(truth, known, t_end=2.0, seed=6)
+    d0 = Discrepancy(["leakage"], **FAST).fit(runs)
+    d = Discrepancy(["leakage"], orifice_models=("thesis", "iso6358"), **FAST).fit(runs)
+    thesis, iso = d.form_fits_["thesis"], d.form_fits_["iso6358"]
+    assert thesis["named"] == d0.named_effect_ and thesis["gap_after"] == d0.gap_after
+    assert "valve.iso_b" not in d0.fitted_params_
+    assert iso["kept"] and thesis["aic_above_best"] >= LINE_DELTA, d.form_fits_
+    assert iso["n_params"] == thesis["n_params"] + 1  # the critical ratio
+    assert d.orifice_model_ == "iso6358" and d.line_model_ == "fd"
+    assert d.named_effect_ == "leakage", d.summary()
+    assert d.fitted_params_["valve.iso_b"] == pytest.approx(0.25, abs=0.05)
+    assert d.fitted_params_["effects.leak_drive_area_m2"] == pytest.approx(3e-7, rel=0.3)
+    assert d.gap_after < d0.gap_after
+    rig = d.updated_rig(runs[0])
+    assert rig.valve.flow_model == "iso6358" and rig.valve.iso_b == d.fitted_params_["valve.iso_b"]
+    assert d.score(runs) == pytest.approx(d.gap_after)
+    d.report(tmp_path, plots=False)
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["orifice_model"] == "iso6358" and rep["config"]["orifice_models"] == ["thesis", "iso6358"]
+    assert "**`iso6358` fits clearly better than the stated `thesis`**" in (tmp_path / "report.md").read_text()
+    assert json.loads((tmp_path / "updated_model.json").read_text())["valve"]["flow_model"] == "iso6358"
 
 
 def test_the_stated_line_stays_when_it_is_right(protocol_runs):
@@ -433,7 +474,7 @@ def test_the_stated_line_stays_when_it_is_right(protocol_runs):
     runs = thesis_protocol(truth, known, t_end=2.0, seed=9)
     d0 = Discrepancy(["sensor_lag"], **FAST).fit(runs)
     d = Discrepancy(["sensor_lag"], line_models=("lumped", "fd"), **FAST).fit(runs)
-    assert d.line_model_ == "fd" and d.line_fits_["lumped"]["aic_above_best"] > 6.0
+    assert d.line_model_ == "fd" and d.form_fits_["lumped"]["aic_above_best"] > 6.0
     assert d.named_effect_ == d0.named_effect_ == "none"
     assert d.fitted_params_ == d0.fitted_params_ and d.gap_after == d0.gap_after
     assert d.updated_model.line.model == "fd"
@@ -510,7 +551,9 @@ def test_cli_refuses_bad_runs(tmp_path, capsys):
     assert "r.json" in capsys.readouterr().err
     assert main(["--hold", str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"),
                  "--line-models", "fd", "lumped"]) == 2
-    assert "--line-models is for extension strokes" in capsys.readouterr().err
+    assert "--line-models and --orifice-models are for extension strokes" in capsys.readouterr().err
+    assert main(["--hold", str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"),
+                 "--orifice-models", "iso6358"]) == 2
 
 
 # -- reports written as a whole; the output folder checked before the fit -------------------------
@@ -863,9 +906,10 @@ def test_each_runs_own_friction_and_a_calibration_on_it():
         .fit(runs[:1]).relative_friction_
 
 
-def test_the_bench_reads_both_line_models_from_one_run(capsys):
-    """``bench_discrepancy.py --line-models``: every case records each line model's answer, so
-    one run gives the matrix of the line chosen and the stated line's (the default workflow's)."""
+def test_the_bench_reads_every_model_form_from_one_run(capsys):
+    """``bench_discrepancy.py --line-models`` / ``--orifice-models``: every case records each
+    model form's answer, so one run gives the matrix of the form chosen and the stated form's
+    (the default workflow's); results written before the orifice laws (``line_fits``) read too."""
     import importlib.util
 
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_discrepancy.py"
@@ -873,21 +917,27 @@ def test_the_bench_reads_both_line_models_from_one_run(capsys):
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
 
-    def row(truth, fd, lumped, chosen):
-        fits = {"fd": {"named": fd, "gap_calibrated": 0.02, "gap_after": 0.01},
-                "lumped": {"named": lumped, "gap_calibrated": 0.015, "gap_after": 0.004}}
-        return {"truth": truth, "named": fits[chosen]["named"], "gap_before": 0.1,
-                "gap_calibrated": fits[chosen]["gap_calibrated"], "gap_after": fits[chosen]["gap_after"],
-                "gap_reduction": 1 - fits[chosen]["gap_after"] / 0.1,
-                "gap_reduction_vs_calibrated": 1 - fits[chosen]["gap_after"] / fits[chosen]["gap_calibrated"],
-                "noise_floor": 0.002, "wall_s": 1.0, "line_model": chosen, "line_fits": fits}
+    def row(truth, fd, lumped, chosen, old=False):
+        fits = {"fd+thesis": {"named": fd, "gap_calibrated": 0.02, "gap_after": 0.01},
+                "lumped+iso6358": {"named": lumped, "gap_calibrated": 0.015, "gap_after": 0.004}}
+        for m, v in fits.items():
+            v["kept"] = m == chosen
+        out = {"truth": truth, "named": fits[chosen]["named"], "gap_before": 0.1,
+               "gap_calibrated": fits[chosen]["gap_calibrated"], "gap_after": fits[chosen]["gap_after"],
+               "gap_reduction": 1 - fits[chosen]["gap_after"] / 0.1,
+               "gap_reduction_vs_calibrated": 1 - fits[chosen]["gap_after"] / fits[chosen]["gap_calibrated"],
+               "noise_floor": 0.002, "wall_s": 1.0, "line_model": chosen.split("+")[0]}
+        if old:  # as bench results of line models only were written
+            return {**out, "line_fits": {m.split("+")[0]: {k: x for k, x in v.items() if k != "kept"}
+                                         for m, v in fits.items()}}
+        return {**out, "form_fits": fits}
 
-    rows = [row("leakage", "none", "leakage", "lumped"), row("none", "none", "sensor_lag", "fd"),
-            row("none", "none", "sensor_lag", "lumped")]
+    rows = [row("leakage", "none", "leakage", "lumped+iso6358"), row("none", "none", "sensor_lag", "fd+thesis"),
+            row("none", "none", "sensor_lag", "lumped+iso6358"), row("none", "none", "leakage", "fd+thesis", old=True)]
     out = bench.summarise(rows)
-    assert out["name_accuracy"] == 1.0 and out["control_accuracy"] == 0.5
-    assert out["line_model_chosen"] == {"lumped": 2, "fd": 1}
-    stated = out["stated_line_only"]
+    assert out["name_accuracy"] == 1.0 and out["control_accuracy"] == 2 / 3
+    assert out["form_chosen"] == {"lumped+iso6358": 2, "fd+thesis": 1, "fd": 1}
+    stated = out["stated_form_only"]
     assert stated["name_accuracy"] == 0.0 and stated["control_accuracy"] == 1.0
     assert stated["confusion"]["leakage"]["none"] == 1
-    assert "the same cases on the stated line only" in capsys.readouterr().out
+    assert "the same cases on the stated form only" in capsys.readouterr().out

@@ -16,7 +16,7 @@ import time
 
 from ..data import MeasurementFormatError
 from ..outputs import OutputError, check_output_dir
-from ..params import LINE_MODELS
+from ..params import LINE_MODELS, ORIFICE_MODELS
 from ..plant import SimulationError
 from .candidates import CANDIDATES
 from .prepare import MAX_SAMPLES
@@ -67,6 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="supply-line models to run the workflow on (fd, lumped); another than "
                          "the runs' stated one is kept only if its updated model fits clearly "
                          "better (default: the stated one only)")
+    ap.add_argument("--orifice-models", nargs="+", default=None, choices=ORIFICE_MODELS,
+                    metavar="LAW",
+                    help="orifice laws to run the workflow on (thesis, iso6358), with each line "
+                         "model tried; as --line-models, another form than the stated one is kept "
+                         "only if it fits clearly better (default: the stated law only)")
     ap.add_argument("--hold", action="store_true",
                     help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
@@ -92,9 +97,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if a.hold:
-        if a.line_models:
-            print("error: --line-models is for extension strokes; a hold test has no supply line "
-                  "to model (the valve is closed)", file=sys.stderr)
+        if a.line_models or a.orifice_models:
+            print("error: --line-models and --orifice-models are for extension strokes; a hold "
+                  "test has no supply line or valve flow to model (the valve is closed)",
+                  file=sys.stderr)
             return 2
         return _hold(a, out)
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
@@ -104,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                         min_improvement=a.min_improvement, seed=a.seed, n_jobs=a.jobs,
                         progress=not a.quiet, max_samples=a.max_samples, calibrate=a.calibrate,
                         discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term,
-                        line_models=a.line_models, **_starts(a))
+                        line_models=a.line_models, orifice_models=a.orifice_models, **_starts(a))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

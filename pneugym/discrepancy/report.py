@@ -137,9 +137,10 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "candidates": [c.to_json() for c in d.candidates_],
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
-        # the supply-line model kept, and each line model's answer and fit (line_models)
+        # the model form kept, and each form's answer and fit (line_models, orifice_models)
         "line_model": getattr(d, "line_model_", None),
-        "line_fits": getattr(d, "line_fits_", {}),
+        "orifice_model": getattr(d, "orifice_model_", None),
+        "form_fits": getattr(d, "form_fits_", {}),
         # these are factors on the value each run's JSON states, not values in the field's unit
         "relative_params": [p.path for p in d.nominal_params_ if p.relative],
         "nominal_params": {p.path: float(v) for p, v in zip(
@@ -209,15 +210,16 @@ def markdown(rep: dict[str, Any]) -> str:
                f"{rep['suggested_experiment']}"), ""]
     elif rep.get("suggested_experiment"):
         L += [f"Suggested experiment (the evidence is short): {rep['suggested_experiment']}", ""]
-    fits = rep.get("line_fits") or {}
+    fits = rep.get("form_fits") or {}
     if len(fits) > 1:
-        stated, kept = next(iter(fits)), rep["line_model"]
+        stated = next(iter(fits))
+        kept = next(m for m, v in fits.items() if v["kept"])
         tried = "; ".join(f"`{m}`: named `{v['named']}`, NRMSE {v['gap_after']:.4g}, Akaike "
                           f"{v['aic_above_best']:+.1f} over the best" for m, v in fits.items())
         verdict = (f"the stated `{stated}` kept (no other fits clearly better)" if kept == stated
                    else f"**`{kept}` fits clearly better than the stated `{stated}`** and is the "
-                        f"updated model's line")
-        L += [f"Supply line: the workflow ran on each line model ({tried}); {verdict}.", ""]
+                        f"updated model's form ({rep['line_model']} line, {rep['orifice_model']} law)")
+        L += [f"Model form: the workflow ran on each form ({tried}); {verdict}.", ""]
     g = rep["gaps"]
     L += ["## Gap (NRMSE)", "",
           (f"Overall NRMSE over all runs: **{rep['gap_before']:.4g} before** (nominal model from the "

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..data import MeasuredRun, MeasurementFormatError, read_runs
 from ..outputs import OutputError, check_output_dir
-from ..params import LINE_MODELS, RigParams
+from ..params import LINE_MODELS, ORIFICE_MODELS, RigParams
 from ..plant import SimulationError
 from .candidates import (
     CANDIDATES,
@@ -65,12 +65,15 @@ from .residuals import (
 from .stats import ar_whitener, f_test, inflation, lr_test, separation, standard_errors, whiten
 
 MODELS = ("nominal", "calibrated", "updated")
-#: Akaike margin by which another supply-line model's updated model must beat the stated line's
-#: before it replaces it (``line_models``). Chosen on a mismatched-form set (offset 100000):
+#: Akaike margin by which another model form's updated model must beat the stated form's
+#: before it replaces it (``line_models``, ``orifice_models``). Chosen on a mismatched-form set (offset 100000):
 #: there the one false switch won by 10.9 and the two that named a missed effect by 51 and 72
 #: (docs/discrepancy.md); commission's FORM_DELTA (6) let a finite-difference rig's control
 #: name a sensor lag on the lumped line
 LINE_DELTA = 20.0
+#: the ISO 6358 critical pressure ratio, freed in the calibration when the workflow tries that
+#: law on runs that state the thesis's (``orifice_models``): their files do not give it
+ISO_B = FitParam("valve.iso_b", 0.1, 0.6, 0.35, unit="-")
 #: highest order of the autoregressive discrepancy term (BIC picks the order per segment)
 AR_MAX_ORDER = 5
 #: the material checks' default share, by discrepancy term: of the whole misfit without one,
@@ -177,9 +180,13 @@ class Discrepancy:
         workflow runs once per model, the stated one first, and the stated model's result
         stands unless another's updated model fits the fitted runs clearly better (Akaike,
         :data:`LINE_DELTA`; :meth:`_choose_form`); the report and
-        ``updated_model.json`` then state that line (:attr:`line_model_`, every model's fit in
-        :attr:`line_fits_`). A rig file rarely says how its line behaves, and a line of the
+        ``updated_model.json`` then state that line (:attr:`line_model_`, every form's fit in
+        :attr:`form_fits_`). A rig file rarely says how its line behaves, and a line of the
         wrong form leaves a structural error that hides small effects (docs/discrepancy.md).
+    orifice_models : the orifice laws (:data:`~pneugym.params.ORIFICE_MODELS`) to try, as
+        ``line_models`` (with both, every line model with every law). Where the runs state the
+        thesis's law, the ISO 6358 law's critical ratio is calibrated with the nominal
+        parameters (:data:`ISO_B`); :attr:`orifice_model_` is the law kept.
     discrepancy_term : the structural error's model the tests read the residuals through.
         ``None`` (default): no term; the residuals' autocorrelation deflates their effective
         sample size (:func:`~pneugym.discrepancy.stats.inflation`). ``"ar"``: an
@@ -199,7 +206,8 @@ class Discrepancy:
                  n_jobs: int | None = 1, progress: bool = False, max_samples: int = MAX_SAMPLES,
                  calibrate: str = "extended", discrepancy_term: str | None = None,
                  calibrate_also: Iterable[FitParam] = (),
-                 line_models: Sequence[str] | None = None):
+                 line_models: Sequence[str] | None = None,
+                 orifice_models: Sequence[str] | None = None):
         cands = []
         for c in (candidates if candidates is not None else CANDIDATES):
             if isinstance(c, Candidate):
@@ -220,16 +228,9 @@ class Discrepancy:
                 raise ValueError(f"candidate {c.name!r} fits {', '.join(sorted(both))}, which the "
                                  f"{calibrate} calibration frees already; use calibrate='basic'")
         self.calibrate = calibrate
-        if line_models is not None:
-            if isinstance(line_models, str) or not line_models:
-                raise ValueError(f"Discrepancy line_models = {line_models!r}: give a sequence of "
-                                 f"line models from {LINE_MODELS}, or None")
-            bad = [m for m in line_models if m not in LINE_MODELS]
-            if bad:
-                raise ValueError(f"Discrepancy line_models: unknown line model {bad[0]!r}; "
-                                 f"choose from {LINE_MODELS}")
-            line_models = tuple(dict.fromkeys(line_models))
-        self.line_models = line_models
+        self.line_models = _form_option("line_models", line_models, LINE_MODELS, "line model")
+        self.orifice_models = _form_option("orifice_models", orifice_models, ORIFICE_MODELS,
+                                           "orifice law")
         self.calibrate_also = tuple(calibrate_also)
         if not all(isinstance(q, FitParam) for q in self.calibrate_also):
             raise ValueError("Discrepancy calibrate_also: give FitParam objects")
@@ -272,15 +273,17 @@ class Discrepancy:
                 "seed": self.seed, "n_jobs": self.n_jobs, "max_samples": self.max_samples,
                 "calibrate": self.calibrate, "discrepancy_term": self.discrepancy_term,
                 "calibrate_also": [q.path for q in self.calibrate_also],
-                "line_models": None if self.line_models is None else list(self.line_models)}
+                "line_models": None if self.line_models is None else list(self.line_models),
+                "orifice_models": None if self.orifice_models is None else list(self.orifice_models)}
 
     def fit(self, runs: Sequence[MeasuredRun] | Sequence[str], base: RigParams | None = None) -> Discrepancy:
         """Run the workflow on measured runs (or paths to runs / folders of runs).
 
         Long runs are windowed and block-averaged first (:attr:`preparation_` says how); the
         attributes ``runs_``, ``sims_``, ``gaps_`` ... refer to the runs as prepared. With
-        ``line_models``, the whole workflow runs once per line model and the stated model's
-        result stands unless another's updated model fits clearly better (:meth:`_choose_form`)."""
+        ``line_models`` or ``orifice_models``, the whole workflow runs once per model form and
+        the stated form's result stands unless another's updated model fits clearly better
+        (:meth:`_choose_form`)."""
         t0 = time.perf_counter()
         runs = list(runs)
         if runs and not isinstance(runs[0], MeasuredRun):
@@ -288,18 +291,25 @@ class Discrepancy:
         if not runs:
             raise ValueError("no runs given")
         self._fit_form(runs, base, None, t0)
-        stated = self.line_model_
-        others = [m for m in (self.line_models or ()) if m != stated]
-        if not others or self.no_gap_:
+        stated = (self.line_model_, self.orifice_model_)
+        lines = list(dict.fromkeys([stated[0], *(self.line_models or ())]))
+        laws = list(dict.fromkeys([stated[1], *(self.orifice_models or ())]))
+        forms = [(m, o) for m in lines for o in laws]
+        if len(forms) == 1 or self.no_gap_:
             return self
-        results = {stated: dict(self.__dict__)}
-        for m in others:
-            self._fit_form(runs, base, m, t0)
-            results[m] = dict(self.__dict__)
+        results = {self._label(stated): dict(self.__dict__)}
+        for form in forms[1:]:
+            self._fit_form(runs, base, form, t0)
+            results[self._label(form)] = dict(self.__dict__)
         return self._choose_form(results, t0)
 
+    def _label(self, form: tuple[str, str]) -> str:
+        """A model form's name: its line model, its orifice law, or both (as tried)."""
+        parts = ([form[0]] if self.line_models else []) + ([form[1]] if self.orifice_models else [])
+        return "+".join(parts)
+
     def _choose_form(self, results: dict[str, dict[str, Any]], t0: float) -> Discrepancy:
-        """Keep the stated line model's result unless another model's updated model fits the
+        """Keep the stated model form's result unless another form's updated model fits the
         fitted runs clearly better: its Akaike criterion, on the stated result's effective
         sample size, lower by :data:`LINE_DELTA` (``N_eff ln SSR + 2 k``, k the fitted
         parameters)."""
@@ -310,7 +320,8 @@ class Discrepancy:
         best = min(results, key=lambda m: aic[m])
         chosen = best if aic[stated] - aic[best] >= LINE_DELTA else stated
         self.__dict__.update(results[chosen])
-        self.line_fits_ = {m: {"named": r["named_effect_"], "ssr_fit": float(r["_updated_fit"][0]),
+        self.form_fits_ = {m: {"named": r["named_effect_"], "kept": m == chosen,
+                               "ssr_fit": float(r["_updated_fit"][0]),
                                "n_params": int(r["_updated_fit"][1]),
                                "aic_above_best": float(aic[m] - aic[best]),
                                "gap_calibrated": float(r["gaps_"]["calibrated"]["all"]["overall"]),
@@ -319,15 +330,16 @@ class Discrepancy:
         self.wall_time_s_ = time.perf_counter() - t0
         return self
 
-    def _fit_form(self, runs: list[MeasuredRun], base: RigParams | None, line_model: str | None,
-                  t0: float) -> Discrepancy:
-        """The workflow on one line model (``None``: the one the runs state)."""
+    def _fit_form(self, runs: list[MeasuredRun], base: RigParams | None,
+                  form: tuple[str, str] | None, t0: float) -> Discrepancy:
+        """The workflow on one model form, ``(line model, orifice law)`` (``None``: the runs'
+        own)."""
         self.rigs_ = [r.rig(base) for r in runs]
-        # the rigs in the model's form: the runs' own, or with the line model tried
-        self.model_rigs_ = (self.rigs_ if line_model is None else
-                            [g.with_(line={"model": line_model}) for g in self.rigs_])
+        # the rigs in the model's form: the runs' own, or with the form tried
+        self.model_rigs_ = self.rigs_ if form is None else [_in_form(g, form) for g in self.rigs_]
         self.line_model_ = self.model_rigs_[0].line.model
-        self.line_fits_: dict[str, dict[str, Any]] = {}
+        self.orifice_model_ = self.model_rigs_[0].valve.flow_model
+        self.form_fits_: dict[str, dict[str, Any]] = {}
         self.no_gap_ = False
         self.whiteners_: dict[tuple[str, str], np.ndarray] | None = None
         runs, self.preparation_ = prepare(runs, self.rigs_, self.max_samples)
@@ -344,6 +356,8 @@ class Discrepancy:
         nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)],
                              extended=self.calibrate == "extended",
                              relative_friction=self.relative_friction_) + self.calibrate_also
+        if self.orifice_model_ == "iso6358" and self.rigs_[0].valve.flow_model != "iso6358":
+            nom += (ISO_B,)  # the law the runs do not state: its critical ratio is unknown
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
         # use the rigs as the plant builds them (automatic substep)
@@ -403,8 +417,10 @@ class Discrepancy:
         return self._finish(runs, nom, cal_vals, t0)
 
     def _form_text(self) -> str:
-        """For the progress bar: the line model being tried, when several are."""
-        return f" ({self.line_model_} line)" if self.line_models else ""
+        """For the progress bar: the model form being tried, when several are."""
+        if not (self.line_models or self.orifice_models):
+            return ""
+        return f" ({self.line_model_} line, {self.orifice_model_} law)"
 
     def _no_gap(self, runs: list[MeasuredRun], nom: tuple[FitParam, ...], json_vals: np.ndarray) -> None:
         """No gap: the calibrated model is the nominal one, no candidate is fitted."""
@@ -437,8 +453,8 @@ class Discrepancy:
         else:
             self.updated_rigs_ = [_for_run(r, apply, g, params, vals) for r, g in zip(runs, self.model_rigs_)]
             self.sims_["updated"] = [replay(r, g) for r, g in zip(runs, self.updated_rigs_)]
-        if self.line_models and not self.no_gap_:
-            # the updated model's fit (fitted runs, fixed substep) for the choice of line model
+        if (self.line_models or self.orifice_models) and not self.no_gap_:
+            # the updated model's fit (fitted runs, fixed substep) for the choice of model form
             fit = {r.name for r in self.fit_runs_}
             fixed = [g for r, g in zip(runs, self._fixed) if r.name in fit]
             segs = [x for _, _, x in Problem(self.fit_runs_, fixed, self.sigma_, params).segments(vals)]
@@ -736,8 +752,8 @@ class Discrepancy:
         """The updated model at the operating point of any run (its JSON + the fitted values)."""
         params, vals = self._fitted
         rig = run.rig(base)
-        if rig.line.model != self.line_model_ and self.model_rigs_ is not self.rigs_:
-            rig = rig.with_(line={"model": self.line_model_})  # the workflow chose another
+        if self.model_rigs_ is not self.rigs_:  # the workflow chose another form than the runs'
+            rig = _in_form(rig, (self.line_model_, self.orifice_model_))
         return apply(rig, params, vals)
 
     def prepared(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> list[MeasuredRun]:
@@ -791,10 +807,11 @@ class Discrepancy:
                       f"({self.gap_reduction:+.1%} reduction)")),
                   "candidates (best first):" if self.candidates_ else
                   "candidates: none fitted (no gap to reduce)"]
-        if len(getattr(self, "line_fits_", {})) > 1:
+        if len(getattr(self, "form_fits_", {})) > 1:
             tried = ", ".join(f"{m} -> {v['named']} (NRMSE {v['gap_after']:.4g})"
-                              for m, v in self.line_fits_.items())
-            lines.insert(-1, f"supply line: {self.line_model_} (each model tried: {tried})")
+                              for m, v in self.form_fits_.items())
+            lines.insert(-1, f"model form: {self.line_model_} line, {self.orifice_model_} law "
+                             f"(each form tried: {tried})")
         for c in self.candidates_:
             eff = ", ".join(f"{k} = {v:.4g}" for k, v in c.effect.items())
             mark = "PASS" if c.passed else "fail"
@@ -818,6 +835,27 @@ class Discrepancy:
 
     def __str__(self) -> str:
         return self.summary()
+
+
+def _form_option(name: str, value: Sequence[str] | None, known: Sequence[str],
+                 what: str) -> tuple[str, ...] | None:
+    """``line_models`` / ``orifice_models`` checked: ``None`` or a sequence of known names."""
+    if value is None:
+        return None
+    if isinstance(value, str) or not value:
+        raise ValueError(f"Discrepancy {name} = {value!r}: give a sequence of {what}s from "
+                         f"{tuple(known)}, or None")
+    bad = [m for m in value if m not in known]
+    if bad:
+        raise ValueError(f"Discrepancy {name}: unknown {what} {bad[0]!r}; choose from {tuple(known)}")
+    return tuple(dict.fromkeys(value))
+
+
+def _in_form(rig: RigParams, form: tuple[str, str]) -> RigParams:
+    """``rig`` with the supply-line model and orifice law of ``form``."""
+    if (rig.line.model, rig.valve.flow_model) == form:
+        return rig
+    return rig.with_(line={"model": form[0]}, valve={"flow_model": form[1]})
 
 
 def _for_run(run: MeasuredRun, fn, *args):
