@@ -66,8 +66,8 @@ from .stats import ar_whitener, f_test, inflation, lr_test, separation, standard
 
 MODELS = ("nominal", "calibrated", "updated")
 #: Akaike margin by which another model form's updated model must beat the stated form's
-#: before it replaces it (``line_models``, ``orifice_models``). Chosen on a mismatched-form set (offset 100000):
-#: there the one false switch won by 10.9 and the two that named a missed effect by 51 and 72
+#: before it replaces it (``line_models``, ``orifice_models``). Chosen for the line models on a
+#: mismatched-form set (offset 100000): there the one false switch won by 10.9 and the two that named a missed effect by 51 and 72
 #: (docs/discrepancy.md); commission's FORM_DELTA (6) let a finite-difference rig's control
 #: name a sensor lag on the lumped line
 LINE_DELTA = 20.0
@@ -356,7 +356,8 @@ class Discrepancy:
         nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)],
                              extended=self.calibrate == "extended",
                              relative_friction=self.relative_friction_) + self.calibrate_also
-        if self.orifice_model_ == "iso6358" and self.rigs_[0].valve.flow_model != "iso6358":
+        if (self.orifice_model_ == "iso6358" and self.rigs_[0].valve.flow_model != "iso6358"
+                and ISO_B.path not in {q.path for q in nom}):
             nom += (ISO_B,)  # the law the runs do not state: its critical ratio is unknown
         self.nominal_params_ = nom
         # fits and checks run on a fixed substep (see fit.fixed_step); reported simulations
