@@ -35,7 +35,7 @@ from .discrepancy.fit import Executor, Job, Problem, fixed_step, solve
 from .discrepancy.prepare import prepare
 from .discrepancy.residuals import estimate_noise, nrmse
 from .discrepancy.stats import FORM_DELTA, f_test, form_delta, inflation
-from .params import LINE_MODELS, ORIFICE_MODELS, RigParams
+from .params import LINE_MODELS, ORIFICE_MODELS, RigParams, forms_tried
 
 FORMAT = "pneugym-commissioning/1"
 #: samples per run the fit uses (longer runs are block-averaged, as in the discrepancy workflow)
@@ -313,8 +313,9 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         raise ValueError("commission: no runs given (record a conventional stroke and one cut "
                          "off on arrival: pneugym.commission.commissioning_protocol)")
     stated = _stated_rig(runs, base)
-    lines = _forms(stated.line.model, line_models, LINE_MODELS, "line model")
-    laws = _forms(stated.valve.flow_model, orifice_models, ORIFICE_MODELS, "orifice law")
+    lines = forms_tried(stated.line.model, line_models, LINE_MODELS, "commission line model")
+    laws = forms_tried(stated.valve.flow_model, orifice_models, ORIFICE_MODELS,
+                       "commission orifice law")
     prepared, _ = prepare(runs, [r.rig(base) for r in runs], max_samples)
     sigma = estimate_noise(prepared)
     params = fitted_params(stated)
@@ -349,15 +350,6 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
                        max_nfev, extras, executor)
     finally:
         executor.close()
-
-
-def _forms(stated: str, tried: Sequence[str] | None, known: Sequence[str], what: str) -> list[str]:
-    """The stated model form first, then the others of ``tried`` (checked against ``known``)."""
-    out = [stated, *(m for m in (tried or ()) if m != stated)]
-    for m in out:
-        if m not in known:
-            raise ValueError(f"commission {what} {m!r}: choose from {tuple(known)}")
-    return out
 
 
 def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, list, list]:

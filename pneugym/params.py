@@ -17,7 +17,7 @@ import numbers
 import os
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 #: Thesis Fig. 3.6: main-valve switching delay [s] against supply gauge pressure [Pa].
 THESIS_VALVE_DELAY = ((150_000.0, 0.215), (250_000.0, 0.185))
@@ -208,6 +208,16 @@ class CylinderParams:
 LINE_MODELS = ("fd", "lumped")
 #: the orifice laws (:attr:`ValveParams.flow_model`)
 ORIFICE_MODELS = ("thesis", "iso6358")
+
+
+def forms_tried(stated: str, tried: Sequence[str] | None, known: Sequence[str], what: str) -> list[str]:
+    """The stated model form first, then the other names of ``tried`` (a line model or an
+    orifice law, ``what``); ``ValueError`` naming one not in ``known``."""
+    out = list(dict.fromkeys([stated, *(tried or ())]))
+    for m in out:
+        if m not in known:
+            raise ValueError(f"{what} {m!r}: choose from {tuple(known)}")
+    return out
 
 
 @dataclass(frozen=True)

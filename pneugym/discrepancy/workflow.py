@@ -31,7 +31,7 @@ import numpy as np
 
 from ..data import MeasuredRun, MeasurementFormatError, read_runs
 from ..outputs import OutputError, check_output_dir
-from ..params import LINE_MODELS, ORIFICE_MODELS, RigParams
+from ..params import LINE_MODELS, ORIFICE_MODELS, RigParams, forms_tried
 from ..plant import SimulationError
 from .candidates import (
     CANDIDATES,
@@ -62,7 +62,7 @@ from .residuals import (
     run_label,
     run_phases,
 )
-from .stats import ar_whitener, f_test, inflation, lr_test, separation, standard_errors, whiten
+from .stats import ar_whitener, f_test, form_delta, inflation, lr_test, separation, standard_errors, whiten
 
 MODELS = ("nominal", "calibrated", "updated")
 #: Akaike margin by which another model form's updated model must beat the stated form's
@@ -292,8 +292,8 @@ class Discrepancy:
             raise ValueError("no runs given")
         self._fit_form(runs, base, None, t0)
         stated = (self.line_model_, self.orifice_model_)
-        lines = list(dict.fromkeys([stated[0], *(self.line_models or ())]))
-        laws = list(dict.fromkeys([stated[1], *(self.orifice_models or ())]))
+        lines = forms_tried(stated[0], self.line_models, LINE_MODELS, "line model")
+        laws = forms_tried(stated[1], self.orifice_models, ORIFICE_MODELS, "orifice law")
         forms = [(m, o) for m in lines for o in laws]
         if len(forms) == 1 or self.no_gap_:
             return self
@@ -311,11 +311,13 @@ class Discrepancy:
     def _choose_form(self, results: dict[str, dict[str, Any]], t0: float) -> Discrepancy:
         """Keep the stated model form's result unless another form's updated model fits the
         fitted runs clearly better: its Akaike criterion, on the stated result's effective
-        sample size, lower by :data:`LINE_DELTA` (``N_eff ln SSR + 2 k``, k the fitted
-        parameters)."""
+        sample size, lower by :data:`LINE_DELTA` (:func:`~.stats.form_delta` plus twice the
+        difference in fitted parameters)."""
         stated = next(iter(results))
         n_eff = results[stated]["_updated_fit"][2]
-        aic = {m: n_eff * np.log(max(r["_updated_fit"][0], 1e-300)) + 2.0 * r["_updated_fit"][1]
+        ssr_min = min(r["_updated_fit"][0] for r in results.values())
+        # each form's Akaike criterion, up to a constant (a failed fit's is inf)
+        aic = {m: form_delta(r["_updated_fit"][0], ssr_min, n_eff) + 2.0 * r["_updated_fit"][1]
                for m, r in results.items()}
         best = min(results, key=lambda m: aic[m])
         chosen = best if aic[stated] - aic[best] >= LINE_DELTA else stated
