@@ -752,11 +752,10 @@ class Discrepancy:
         return self.updated_rigs_[self.runs_.index(self.fit_runs_[0])]
 
     def updated_rig(self, run: MeasuredRun, base: RigParams | None = None) -> RigParams:
-        """The updated model at the operating point of any run (its JSON + the fitted values)."""
+        """The updated model at the operating point of any run (its JSON + the fitted values),
+        in the model form the workflow kept."""
         params, vals = self._fitted
-        rig = run.rig(base)
-        if self.model_rigs_ is not self.rigs_:  # the workflow chose another form than the runs'
-            rig = _in_form(rig, (self.line_model_, self.orifice_model_))
+        rig = _in_form(run.rig(base), (self.line_model_, self.orifice_model_))
         return apply(rig, params, vals)
 
     def prepared(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> list[MeasuredRun]:
