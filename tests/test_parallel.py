@@ -115,6 +115,26 @@ def test_sweep_refuses_a_seed_folder_in_use(tmp_path):
         sweep.train_seeds("esac", tmp_path, [2, 3], progress=False, timesteps=48)
 
 
+def test_a_run_of_many_records_the_command_that_trains_it(tmp_path):
+    """A sweep's or a tuning trial's run records the ``pneugym train`` line of that one run (the
+    command line parses it back to the same options), not the worker process's command."""
+    from agents.training.cli import parser
+    from agents.training.trainer import command_line
+
+    kw = {"budget": "quick", "config": "/c/ppo-family.yaml", "rig": "/c/rig.json",
+          "timesteps": 400, "preset": "family", "progress": False,
+          "overrides": ["algo.learning_rate=0.0001", "policy_kwargs.net_arch=[256, 256]"]}
+    cmd = command_line("ppo", tmp_path / "seed_3", 3, kw)
+    assert cmd[0] == "pneugym train"
+    a = parser().parse_args(cmd[1:])
+    assert (a.algo, a.seed, a.out, a.budget, a.config, a.rig, a.timesteps, a.preset, a.set) == (
+        "ppo", 3, str(tmp_path / "seed_3"), "quick", "/c/ppo-family.yaml", "/c/rig.json", 400,
+        "family", kw["overrides"])
+    # the default budget and a rig given as a mapping (config.rig records it) stay off the line
+    assert command_line("esac", "o", 0, {"budget": "default", "rig": {"valve": {}}}) == [
+        "pneugym train", "--algo", "esac", "--seed", "0", "--out", "o"]
+
+
 def test_task_failure_is_raised():
     with pytest.raises(ValueError, match="unknown algorithm"):
         run_tasks(sweep._one_seed, [{"algo": "nope", "out": "x", "seed": 0, "train_kw": {}}],
@@ -210,7 +230,11 @@ def test_seed_sweep_on_ray_matches_local(ray_head, tmp_path, tmp_path_factory):
     assert _seed_figures(on_ray) == _seed_figures(local)
     assert on_ray["summary"]["validation_return"] == local["summary"]["validation_return"]
     for s in (1, 2):  # every run is a complete run folder, as train.py writes it, the same rule
-        assert json.loads((tmp_path / "ray" / f"seed_{s}" / "run.json").read_text())["seed"] == s
+        for where in ("ray", "local"):  # ... recording the command that trains that one run
+            run = json.loads((tmp_path / where / f"seed_{s}" / "run.json").read_text())
+            assert run["seed"] == s and run["command"][:7] == [
+                "pneugym train", "--algo", "esac", "--seed", str(s), "--out",
+                str((tmp_path / where / f"seed_{s}").resolve())]
         a = (tmp_path / "local" / f"seed_{s}" / "rule_sweep.json").read_text()
         assert (tmp_path / "ray" / f"seed_{s}" / "rule_sweep.json").read_text() == a
 
@@ -239,6 +263,10 @@ def test_tune_on_ray(ray_head, tmp_path, tmp_path_factory):
     assert len(res["results"]) == 2 and res["best"] == res["results"][0]
     assert {r["overrides"][0] for r in res["results"]} <= {"rule_grid.margin=[0.05]",
                                                           "rule_grid.margin=[0.1]"}
+    for d in (tmp_path / "tune" / "trials").iterdir():  # each trial records its own command
+        cmd = json.loads((d / "run.json").read_text())["command"]
+        assert cmd[:5] == ["pneugym train", "--algo", "esac", "--seed", "1"]
+        assert cmd[-2] == "--set" and cmd[-1].startswith("rule_grid.margin=")
     # a trial is a training run with the trial's overrides: seed 1 with the best margin
     run = train("esac", tmp_path / "direct", seed=1, progress=False,
                 **{**_train_kw(root), "overrides": [*small("esac", root), *res["best"]["overrides"]]})

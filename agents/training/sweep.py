@@ -65,9 +65,9 @@ def recorded_options(train_kw: dict[str, Any]) -> dict[str, Any]:
 
 def _one_seed(algo: str, out: str, seed: int, train_kw: dict[str, Any]) -> dict[str, Any]:
     """Train one seed (a task of :func:`pneugym.parallel.run_tasks`); its ``run.json`` content."""
-    from .trainer import train
+    from .trainer import command_line, train
 
-    return train(algo, out, seed=seed, **train_kw)
+    return train(algo, out, seed=seed, command=command_line(algo, out, seed, train_kw), **train_kw)
 
 
 def _figures(run: dict[str, Any]) -> dict[str, Any]:

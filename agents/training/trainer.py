@@ -16,6 +16,23 @@ from .seeds import MAX_TRAINING_SEED, check_seed
 from .signals import StopRequest, TrainingInterrupted, stop_on_signals
 
 
+def command_line(algo: str, out: str | Path, seed: int, train_kw: Mapping[str, Any]) -> list[str]:
+    """The ``pneugym train`` command line that trains this one run: what a run of a seed sweep or
+    a tuning trial records as its command (not the worker process's). ``train_kw`` as
+    :func:`train` takes them; a rig given as a mapping is not on it (``config.rig`` has it)."""
+    cmd = ["pneugym train", "--algo", algo, "--seed", str(seed), "--out", str(out)]
+    for option, key in (("--preset", "preset"), ("--timesteps", "timesteps"), ("--budget", "budget"),
+                        ("--config", "config"), ("--rig", "rig")):
+        value = train_kw.get(key)
+        if value is None or (key == "budget" and value == "default") or (
+                key == "rig" and not isinstance(value, (str, Path))):
+            continue
+        cmd += [option, str(value)]
+    for o in train_kw.get("overrides", ()):
+        cmd += ["--set", str(o)]
+    return cmd
+
+
 def _threads(cfg: Mapping[str, Any]) -> None:
     """One thread each for numba and torch unless configured (the machine is small and shared;
     numba's parallel batch kernel is slower than one thread on a busy machine)."""
@@ -30,7 +47,8 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
           seed: int = 0, resume: bool = False, budget: str = "default",
           config: str | Path | None = None, overrides: Sequence[str] = (),
           progress: bool = True, force: bool = False,
-          trust_pickled_replay_buffer: bool = False, rig: Any = None) -> dict[str, Any]:
+          trust_pickled_replay_buffer: bool = False, rig: Any = None,
+          command: Sequence[str] | None = None) -> dict[str, Any]:
     """Train ``algo`` into ``out``; returns the final ``run.json`` content.
 
     The configuration is checked whole before anything is written
@@ -45,7 +63,9 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     buffers of older runs (pickles) are loaded on resume only with
     ``trust_pickled_replay_buffer`` (only for your own runs). ``rig``: the rig to train on (a rig
     file, a mapping or a :class:`~pneugym.params.RigParams`; default the configuration's, else
-    the thesis rig), recorded whole in ``run.json``'s ``config.rig``."""
+    the thesis rig), recorded whole in ``run.json``'s ``config.rig``. ``command``: the command
+    line ``run.json`` records (default this process's; a sweep or a tuning trial gives the
+    ``pneugym train`` line of its one run, :func:`command_line`)."""
     from pneugym.outputs import check_output_dir
     from pneugym.provenance import provenance
 
@@ -88,7 +108,9 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
     if "interrupted" in run:
         run["interruptions"] = [*run.get("interruptions", []), run.pop("interrupted")]
     run.update({"algo": algo, "seed": seed, "preset": cfg["preset"], "budget": budget,
-                "config": cfg, "command": [Path(sys.argv[0]).name, *sys.argv[1:]],
+                "config": cfg,
+                "command": list(command) if command is not None
+                else [Path(sys.argv[0]).name, *sys.argv[1:]],
                 "provenance": provenance(), "pneugym_sources": esac.source_hash(),
                 "training_seeds_below": MAX_TRAINING_SEED})
     run.setdefault("started_utc", run["provenance"]["created_utc"])

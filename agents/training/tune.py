@@ -93,12 +93,13 @@ def _trial(config: dict[str, Any], algo: str, root: str, seed: int,
     reported to Tune."""
     from ray import tune
 
-    from .trainer import train
+    from .trainer import command_line, train
 
     trial = tune.get_context().get_trial_id()
     kw = dict(train_kw, overrides=[*train_kw.get("overrides", ()), *_overrides(config)],
               progress=False)
-    run = train(algo, Path(root) / "trials" / trial, seed=seed, **kw)
+    out = Path(root) / "trials" / trial
+    run = train(algo, out, seed=seed, command=command_line(algo, out, seed, kw), **kw)
     best = run.get("best", {})
     ret = best.get("return")
     tune.report({METRIC: float(ret) if ret is not None else None,
