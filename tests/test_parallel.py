@@ -256,11 +256,12 @@ def test_tune_on_ray(ray_head, tmp_path, tmp_path_factory):
     root = trained_runs(tmp_path_factory)["esac"].parent
     space = tmp_path / "space.yaml"
     space.write_text("rule_grid.margin: {choice: [[0.05], [0.1]]}\n")
-    _pneugym(env, "train", "--algo", "esac", "--tune", space, "--trials", 2, "--seed", 1,
-             "--workers", 2, "--ray-address", address, "--out", tmp_path / "tune",
-             *_small_args(root))
+    r = _pneugym(env, "train", "--algo", "esac", "--tune", space, "--trials", 2, "--seed", 1,
+                 "--workers", 2, "--ray-address", address, "--out", tmp_path / "tune",
+                 *_small_args(root))
     res = json.loads((tmp_path / "tune" / TUNE_FILE).read_text())
     assert len(res["results"]) == 2 and res["best"] == res["results"][0]
+    assert f"(its run: {tmp_path / 'tune'}/trials/{res['best']['trial']})" in r.stdout
     assert {r["overrides"][0] for r in res["results"]} <= {"rule_grid.margin=[0.05]",
                                                           "rule_grid.margin=[0.1]"}
     for d in (tmp_path / "tune" / "trials").iterdir():  # each trial records its own command

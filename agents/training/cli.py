@@ -174,6 +174,6 @@ def _tune(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str) -> di
     best = res["best"]
     ret = best["validation_return"]
     print(f"done in {res['wall_s']:.0f} s: {res['trials']} trials; best validation return "
-          f"{'-' if ret is None else f'{ret:.4f}'} with {' '.join(best['overrides'])}; "
-          f"{out}/tune.json")
+          f"{'-' if ret is None else f'{ret:.4f}'} with {' '.join(best['overrides'])} "
+          f"(its run: {out}/trials/{best['trial']}); {out}/tune.json")
     return res
