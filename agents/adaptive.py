@@ -587,7 +587,8 @@ def _net_from_bytes(blob: bytes) -> Any:
 def _hidden(net: Any) -> list[int]:
     import torch
 
-    return [m.out_features for m in net.body if isinstance(m, torch.nn.Linear)][:-1]
+    body = net.members[0] if hasattr(net, "members") else net.body  # an ensemble's: its first
+    return [m.out_features for m in body if isinstance(m, torch.nn.Linear)][:-1]
 
 
 def make_controller(spec: str, env: Any, seed: int = 0, **options: Any) -> Frozen:

@@ -52,3 +52,79 @@ def test_delay_input_predictor_shapes():
         esac.ESACPredictor(net, lay)   # 15 inputs are not an observation of 14
     with pytest.raises(ValueError, match="no delay input"):
         small_predictor()(obs, [0.01])
+
+
+def _data(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, 14)).astype(np.float32)
+    y = np.zeros((n, 7), np.float32)
+    y[:, 0], y[:, 1] = rng.random(n) > 0.5, rng.random(n) > 0.8
+    y[:, 2:] = rng.normal(size=(n, 5)) + x[:, :5]
+    return x, y, np.ones_like(y)
+
+
+def test_ensemble_member_zero_is_the_single_fit_and_heads_combine_as_stated():
+    """fit(members=3): member 0 is the single network of the same seed, to the last bit; the
+    members share the normalisation; each output is the worst member's where the rule reads
+    it for safety or objective (ENSEMBLE_COMBINE) and the mean elsewhere."""
+    torch.set_num_threads(1)
+    x, y, m = _data()
+    single, _ = esac.fit(x, y, m, hidden=(8,), epochs=3, seed=3, progress=False)
+    ens, hist = esac.fit(x, y, m, hidden=(8,), epochs=3, seed=3, progress=False, members=3)
+    assert esac.is_ensemble(ens) and not esac.is_ensemble(single)
+    assert len(hist["members"]) == 3 and hist["best_val"] == pytest.approx(
+        np.mean([h["best_val"] for h in hist["members"]]))
+    for a, b in zip(ens.members[0].state_dict().values(), single.body.state_dict().values()):
+        assert torch.equal(a, b)
+    assert torch.equal(ens.in_mean, single.in_mean) and torch.equal(ens.out_std, single.out_std)
+    assert not torch.equal(ens.members[1][0].weight, ens.members[2][0].weight)
+    xt = torch.as_tensor(x[:50])
+    with torch.no_grad():
+        every, out = ens.all_outputs(xt), ens(xt)
+        np.testing.assert_array_equal(every[0].numpy(), single(xt).numpy())
+    heads = (*esac.CLASS_HEADS, *esac.REG_HEADS)
+    reduce = {"min": lambda t: t.min(0).values, "max": lambda t: t.max(0).values,
+              "mean": lambda t: t.mean(0)}
+    for k, head in enumerate(heads):
+        torch.testing.assert_close(out[:, k], reduce[esac.ENSEMBLE_COMBINE[head]](every[:, :, k]))
+    assert esac.ENSEMBLE_COMBINE["complete"] == "min"           # the least sure to complete
+    assert esac.ENSEMBLE_COMBINE["log_time_ratio"] == "max"     # the slowest stroke
+
+
+def test_ensemble_predicts_the_worst_member_where_members_disagree():
+    """Two members that agree but for the time ratio: the predictor takes the longer stroke and
+    the same completion probability."""
+    lay = obs_layout()
+    ens = esac.make_net(14, (8,), members=2)
+    with torch.no_grad():
+        ens.members[1].load_state_dict(ens.members[0].state_dict())
+        ens.members[1][-1].bias[2 + esac.REG_HEADS.index("log_time_ratio")] += 0.5
+    obs = np.random.default_rng(1).random((4, 14)).astype(np.float32)
+    p = esac.ESACPredictor(ens, lay)(obs)
+    one = esac.make_net(14, (8,))
+    one.body.load_state_dict(ens.members[0].state_dict())
+    q = esac.ESACPredictor(one, lay)(obs)
+    np.testing.assert_allclose(p["p_complete"], q["p_complete"], rtol=1e-6)
+    assert np.all(p["time_increase"] > q["time_increase"] + 0.3)
+
+
+def test_ensemble_saves_loads_and_fine_tunes_member_by_member(tmp_path):
+    torch.set_num_threads(1)
+    x, y, m = _data()
+    lay = obs_layout()
+    ens, _ = esac.fit(x, y, m, hidden=(8,), epochs=2, seed=1, progress=False, members=2)
+    meta = {"n_in": 14, "hidden": [8], "layout": lay, "delay_input": False, "lookahead_s": []}
+    esac.save(tmp_path / "m.pt", ens, meta)
+    pred, saved = esac.load(tmp_path / "m.pt")
+    assert saved["members"] == 2 and esac.is_ensemble(pred.net)
+    a, b = esac.ESACPredictor(ens, lay)(x[:20]), pred(x[:20])
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+    tuned, hist = esac.fit(x, y, m, hidden=(8,), epochs=1, seed=5, progress=False, init=ens)
+    assert esac.is_ensemble(tuned) and len(tuned.members) == 2 and len(hist["members"]) == 2
+    assert torch.equal(tuned.in_mean, ens.in_mean)  # the units it was trained in
+    assert not torch.equal(tuned.members[1][0].weight, ens.members[1][0].weight)
+    with pytest.raises(ValueError, match="1 to 32"):
+        esac.fit(x, y, m, hidden=(8,), epochs=1, progress=False, members=0)
+    with pytest.raises(ValueError, match="pass it as init"):
+        esac.fit(x, y, m, hidden=(8,), epochs=1, progress=False, members=2, init=ens.member(0))

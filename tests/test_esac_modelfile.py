@@ -104,6 +104,11 @@ def _without_position():
                                 r"most 16 layer widths from 1 to 4096"),
     ({"hidden": [4096] * 16}, r"describes a network .* of [\d,]+ bytes of weights, but the file "
                               r"holds"),
+    ({"members": 0}, r"members is 0; expected the ensemble's number of networks, an integer "
+                     r"from 1 to 32"),
+    ({"members": 33}, r"members is 33"),
+    ({"members": 2}, r"do not fit the network its metadata describes \(n_in 14, hidden \[8\], "
+                     r"2 members\)"),
     ({"delay_input": "false"}, r"delay_input is 'false'; expected true or false"),
     ({"lookahead_s": "abc"}, r"lookahead_s is 'abc'"),
     ({"lookahead_s": [None]}, r"lookahead_s is \[None\]"),

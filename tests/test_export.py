@@ -67,6 +67,25 @@ def esac_policy(delay_input=False):
                            source="test ESAC" + (" (delay input)" if delay_input else ""))
 
 
+def esac_ensemble_policy():
+    """:func:`esac_policy`'s network and a perturbed copy of it as an ensemble of two (its
+    outputs the worst member's or the mean, head by head)."""
+    pol = esac_policy()
+    net, lay = pol.predictor.net, pol.predictor.layout
+    ens = esac.make_net(lay["size"], (16,), members=2)
+    torch.manual_seed(3)
+    with torch.no_grad():
+        for name in ("in_mean", "in_std", "out_mean", "out_std"):
+            getattr(ens, name).copy_(getattr(net, name))
+        for member in ens.members:
+            member.load_state_dict(net.body.state_dict())
+        last = ens.members[1][2]
+        last.weight.add_(0.02 * torch.randn(last.weight.shape))
+        last.bias[0] -= 0.5  # less sure of a complete stroke: cuts later
+    pred = esac.ESACPredictor(ens.eval(), lay)
+    return esac.ESACPolicy(_env_layout(), pred, margin=0.05, source="test ESAC ensemble")
+
+
 def _shape_actor(linear_in, linear_out, gain=1.0):
     """Make the first hidden unit follow the newest position and drive the cut output."""
     torch.manual_seed(2)
@@ -114,6 +133,7 @@ def dqn_policy(value=3.0):
 POLICIES = {
     "esac": lambda: esac_policy(),
     "esac-delay": lambda: esac_policy(delay_input=True),
+    "esac-ensemble": lambda: esac_ensemble_policy(),
     "ppo-argmax": lambda: ppo_policy(),
     "ppo-quantile": lambda: ppo_policy("quantile", 0.5),
     "ppo-hazard": lambda: ppo_policy("hazard", 0.7),

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from training_helpers import SMALL, small, trained_runs
+from training_helpers import SMALL, STEPS, small, trained_runs
 
 from agents import training
 from agents.training import ondemand
@@ -47,6 +47,27 @@ def test_trained_model_runs_in_evaluate(runs, algo):
     conds = [c for _, c in suite_episodes("nominal", 1, EVAL_SEED)]
     out = run_policy(pol, conds, {}, EVAL_SEED)
     assert len(out["objective"]) == 2 and np.all(np.isfinite(out["objective"]))
+
+
+def test_esac_trains_an_ensemble(runs, tmp_path):
+    """``fit.ensemble: 2``: the run fits two networks on the same rollouts (cached), tunes the
+    rule on their combined prediction, records both fits, and the model loads and runs as an
+    ensemble."""
+    from agents import esac
+
+    out = tmp_path / "esac-ensemble"
+    training.train("esac", out, timesteps=STEPS["esac"], seed=1, progress=False,
+                   overrides=small("esac", runs["esac"].parent) + ["fit.ensemble=2"])
+    run = json.loads((out / "run.json").read_text())
+    assert run["config"]["fit"]["ensemble"] == 2 and len(run["fit"]["members"]) == 2
+    pred, meta = esac.load(out / "model.pt")
+    assert meta["members"] == 2 and esac.is_ensemble(pred.net)
+    one = json.loads((runs["esac"] / "run.json").read_text())
+    assert run["fit"]["members"][0]["best_val"] == pytest.approx(one["fit"]["best_val"])
+    env = CutOffVectorEnv(num_envs=1)
+    conds = [c for _, c in suite_episodes("nominal", 1, EVAL_SEED)]
+    res = run_policy(load_policy(out, env), conds, {}, EVAL_SEED)
+    assert np.all(np.isfinite(res["objective"]))
 
 
 @pytest.mark.parametrize("algo", ["ppo", "esac"])

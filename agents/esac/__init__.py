@@ -55,7 +55,17 @@ from .data import (
     source_hash,
     targets,
 )
-from .model import CLASS_HEADS, REG_HEADS, ESACPredictor, fit, make_net
+from .model import (
+    CLASS_HEADS,
+    ENSEMBLE_COMBINE,
+    MAX_MEMBERS,
+    REG_HEADS,
+    ESACPredictor,
+    ensemble_of,
+    fit,
+    is_ensemble,
+    make_net,
+)
 from .modelfile import (
     FORMAT,
     MAX_FILE_BYTES,
@@ -72,9 +82,9 @@ from .report import accuracy, plot_accuracy
 from .rule import RULE_DEFAULTS, RULE_PARAMETERS, check_rule
 
 __all__ = [
-    "CLASS_HEADS", "FORMAT", "GENERATOR_VERSION", "LAGS", "MAX_FILE_BYTES", "MAX_HIDDEN_LAYERS",
-    "MAX_HIDDEN_WIDTH", "MAX_META_BYTES", "REG_HEADS", "RULE_DEFAULTS", "RULE_PARAMETERS",
-    "ESACPolicy", "ESACPredictor", "accuracy", "check_rule", "fit", "generate_rollouts",
-    "is_esac_file", "load", "load_policy", "make_net", "plot_accuracy", "rollouts", "samples",
+    "CLASS_HEADS", "ENSEMBLE_COMBINE", "FORMAT", "GENERATOR_VERSION", "LAGS", "MAX_FILE_BYTES", "MAX_HIDDEN_LAYERS",
+    "MAX_HIDDEN_WIDTH", "MAX_MEMBERS", "MAX_META_BYTES", "REG_HEADS", "RULE_DEFAULTS", "RULE_PARAMETERS",
+    "ESACPolicy", "ESACPredictor", "accuracy", "check_rule", "ensemble_of", "fit", "generate_rollouts",
+    "is_ensemble", "is_esac_file", "load", "load_policy", "make_net", "plot_accuracy", "rollouts", "samples",
     "save", "source_hash", "sweep_rule", "targets", "torch_isfinite_all",
 ]

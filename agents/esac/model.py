@@ -4,6 +4,7 @@ later, in SI units.
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from typing import Any, Callable, Mapping, Sequence
@@ -22,39 +23,145 @@ def _torch():
     return torch
 
 
-def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128)):
-    """An MLP from the observation to ``2 + 5`` outputs (logits, standardised values), with the
-    input and output normalisation as buffers (saved with the weights)."""
+#: How an ensemble combines its members' outputs, head by head (:class:`ESACEnsemble`): the
+#: worst member for every head the rule's safety and objective read, the mean for the two the
+#: rule only divides by (the conventional stroke's time and energy).
+ENSEMBLE_COMBINE = {"complete": "min", "stick": "max", "final_position": "min",
+                    "log_time_ratio": "max", "conventional_time_s": "mean",
+                    "wasted_fraction": "max", "energy_conventional_j": "mean"}
+#: the most members a model may have
+MAX_MEMBERS = 32
+
+
+def _body(n_in: int, hidden: Sequence[int]):
+    """The MLP from the normalised observation to the ``2 + 5`` raw outputs."""
+    nn = _torch().nn
+    layers: list[Any] = []
+    last = n_in
+    for h in hidden:
+        layers += [nn.Linear(last, h), nn.SiLU()]
+        last = h
+    layers.append(nn.Linear(last, len(CLASS_HEADS) + len(REG_HEADS)))
+    return nn.Sequential(*layers)
+
+
+def _norm_buffers(module, n_in: int) -> None:
+    """The input and output normalisation, as buffers (saved with the weights)."""
     torch = _torch()
-    nn = torch.nn
+    module.register_buffer("in_mean", torch.zeros(n_in))
+    module.register_buffer("in_std", torch.ones(n_in))
+    module.register_buffer("out_mean", torch.zeros(len(REG_HEADS)))
+    module.register_buffer("out_std", torch.ones(len(REG_HEADS)))
+
+
+def _copy_norm(dst, src) -> None:
+    """``src``'s input and output normalisation into ``dst``'s buffers."""
+    with _torch().no_grad():
+        for name in ("in_mean", "in_std", "out_mean", "out_std"):
+            getattr(dst, name).copy_(getattr(src, name))
+
+
+def _check_members(members: Any) -> int:
+    if not (isinstance(members, int) and 1 <= members <= MAX_MEMBERS):
+        raise ValueError(f"members = {members!r}: an ESAC ensemble has 1 to {MAX_MEMBERS} "
+                         f"networks")
+    return members
+
+
+def make_net(n_in: int, hidden: Sequence[int] = (128, 128, 128), members: int = 1):
+    """An MLP from the observation to ``2 + 5`` outputs (logits, standardised values), with the
+    input and output normalisation as buffers (saved with the weights); with ``members > 1``
+    an :class:`ESACEnsemble` of that many MLPs sharing the normalisation."""
+    nn = _torch().nn
+    _check_members(members)
 
     class ESACNet(nn.Module):
         def __init__(self):
             super().__init__()
-            layers: list[nn.Module] = []
-            last = n_in
-            for h in hidden:
-                layers += [nn.Linear(last, h), nn.SiLU()]
-                last = h
-            layers.append(nn.Linear(last, len(CLASS_HEADS) + len(REG_HEADS)))
-            self.body = nn.Sequential(*layers)
-            self.register_buffer("in_mean", torch.zeros(n_in))
-            self.register_buffer("in_std", torch.ones(n_in))
-            self.register_buffer("out_mean", torch.zeros(len(REG_HEADS)))
-            self.register_buffer("out_std", torch.ones(len(REG_HEADS)))
+            self.body = _body(n_in, hidden)
+            _norm_buffers(self, n_in)
 
         def forward(self, x):
             """Raw outputs: class logits, then standardised regression values."""
             return self.body((x - self.in_mean) / self.in_std)
 
-    return ESACNet()
+    if members == 1:
+        return ESACNet()
+    return _ensemble_class()([_body(n_in, hidden) for _ in range(members)])
+
+
+@functools.cache
+def _ensemble_class():
+    nn = _torch().nn
+    torch = _torch()
+    heads = (*CLASS_HEADS, *REG_HEADS)
+
+    class ESACEnsemble(nn.Module):
+        """``members`` MLPs (:func:`make_net`'s bodies) on one input and output normalisation;
+        :meth:`forward` gives each head as :data:`ENSEMBLE_COMBINE` combines the members'
+        (standardised outputs share their scale, so the worst member in them is the worst in
+        units). Where the members agree this is their common prediction; where they disagree
+        (inputs unlike their training data) the most cautious one."""
+
+        def __init__(self, bodies):
+            super().__init__()
+            self.members = nn.ModuleList(bodies)
+            _norm_buffers(self, int(bodies[0][0].in_features))
+            for how in ("min", "max"):
+                self.register_buffer(f"_{how}", torch.tensor(
+                    [ENSEMBLE_COMBINE[h] == how for h in heads]), persistent=False)
+
+        def member(self, k: int):
+            """Member ``k`` as a single network (:func:`make_net`), sharing nothing."""
+            import copy
+
+            body = self.members[k]
+            widths = [m.out_features for m in body if isinstance(m, nn.Linear)][:-1]
+            net = make_net(int(self.in_mean.shape[0]), widths)
+            net.body = copy.deepcopy(body)
+            _copy_norm(net, self)
+            return net
+
+        def all_outputs(self, x):
+            """Every member's raw outputs (K, B, 7)."""
+            z = (x - self.in_mean) / self.in_std
+            return torch.stack([m(z) for m in self.members])
+
+        def forward(self, x):
+            o = self.all_outputs(x)
+            return torch.where(self._min, o.min(dim=0).values,
+                               torch.where(self._max, o.max(dim=0).values, o.mean(dim=0)))
+
+    return ESACEnsemble
+
+
+def is_ensemble(net: Any) -> bool:
+    """True if ``net`` is an :class:`ESACEnsemble` (several members)."""
+    return hasattr(net, "members")
+
+
+def ensemble_of(nets: Sequence[Any]):
+    """The :class:`ESACEnsemble` of single networks ``nets`` that share their normalisation
+    (:func:`fit` with ``members``); its buffers are the first's."""
+    import copy
+
+    torch = _torch()
+    first = nets[0]
+    for k, n in enumerate(nets[1:], 1):
+        for name in ("in_mean", "in_std", "out_mean", "out_std"):
+            if not torch.equal(getattr(n, name), getattr(first, name)):
+                raise ValueError(f"member {k} of the ensemble has its own {name}: members must "
+                                 f"share the normalisation")
+    ens = _ensemble_class()([copy.deepcopy(n.body) for n in nets])
+    _copy_norm(ens, first)
+    return ens.eval()
 
 
 def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = (128, 128, 128),
         epochs: int = 60, batch_size: int = 256, lr: float = 2e-3, weight_decay: float = 1e-5,
         val_fraction: float = 0.1, seed: int = 0, patience: int = 15, time_loss: str = "mse",
-        groups: np.ndarray | None = None, progress: bool = True, init: Any = None
-        ) -> tuple[Any, dict[str, Any]]:
+        groups: np.ndarray | None = None, progress: bool = True, init: Any = None,
+        members: int = 1) -> tuple[Any, dict[str, Any]]:
     """Train the predictor on ``x`` (B, n_in), targets ``y`` and ``mask`` of
     :func:`~agents.esac.data.targets`: binary cross-entropy on the class heads, mean squared
     error on the standardised regression heads (masked), AdamW with a one-cycle learning rate;
@@ -64,9 +171,30 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     instead of its mean: sharper at the knee where a later cut stops lengthening the stroke (the
     mean smooths it into a bias). ``init``: a trained network to fine-tune (a copy is trained; its
     input and output normalisation are kept, so that its units stay those it was trained in).
-    Returns the network and the loss history."""
+    ``members > 1`` fits an :class:`ESACEnsemble`: member ``k`` from its own initialisation
+    with seed ``seed + MEMBER_SEED_STEP * k`` (its own validation split and minibatch order) on
+    the first member's normalisation; an ensemble ``init`` is fine-tuned member by member.
+    Returns the network and the loss history (an ensemble's: the first member's curves, the
+    mean best validation loss and each member's figures under ``members``)."""
     if time_loss not in ("mse", "l1"):
         raise ValueError(f"time_loss = {time_loss!r}: choose 'mse' or 'l1'")
+    kw = dict(hidden=hidden, epochs=epochs, batch_size=batch_size, lr=lr,
+              weight_decay=weight_decay, val_fraction=val_fraction, patience=patience,
+              time_loss=time_loss, groups=groups, progress=progress)
+    if init is not None and is_ensemble(init):
+        return _fit_members(x, y, mask, seed, [init.member(k) for k in range(len(init.members))],
+                            kw)
+    if _check_members(members) > 1:
+        if init is not None:
+            raise ValueError("fit: members > 1 starts an ensemble afresh; to fine-tune one, "
+                             "pass it as init")
+        first, hist = fit(x, y, mask, seed=seed, **kw)
+        inits = [first]
+        for k in range(1, members):
+            _torch().manual_seed(seed + MEMBER_SEED_STEP * k)
+            inits.append(make_net(x.shape[1], hidden))
+            _copy_norm(inits[-1], first)
+        return _fit_members(x, y, mask, seed, inits, kw, done=(first, hist))
     from tqdm import tqdm
 
     torch = _torch()
@@ -141,6 +269,31 @@ def fit(x: np.ndarray, y: np.ndarray, mask: np.ndarray, hidden: Sequence[int] = 
     net.eval()
     hist.update(best_val=best, epochs_run=len(hist["val"]), fit_wall_s=time.perf_counter() - t0)
     return net, hist
+
+
+#: member ``k`` of an ensemble fits with seed ``seed + MEMBER_SEED_STEP * k``
+MEMBER_SEED_STEP = 1000
+
+
+def _fit_members(x, y, mask, seed: int, inits: Sequence[Any], kw: Mapping[str, Any],
+                 done: tuple[Any, dict[str, Any]] | None = None) -> tuple[Any, dict[str, Any]]:
+    """:func:`fit` of each network of ``inits`` (fine-tuned from it; member ``k`` with seed
+    ``seed + MEMBER_SEED_STEP * k``; ``done``: member 0 already fitted), as one ensemble."""
+    nets, hists = [], []
+    for k, net in enumerate(inits):
+        if k == 0 and done is not None:
+            net, h = done
+        else:
+            net, h = fit(x, y, mask, seed=seed + MEMBER_SEED_STEP * k, init=net, **kw)
+        nets.append(net)
+        hists.append(h)
+    hist = {"train": hists[0]["train"], "val": hists[0]["val"],
+            "best_val": float(np.mean([h["best_val"] for h in hists])),
+            "epochs_run": int(sum(h["epochs_run"] for h in hists)),
+            "fit_wall_s": float(sum(h["fit_wall_s"] for h in hists)),
+            "members": [{"best_val": float(h["best_val"]), "epochs_run": int(h["epochs_run"])}
+                        for h in hists]}
+    return ensemble_of(nets), hist
 
 
 def _loss(net, x, y, m, time_loss: str = "mse"):

@@ -9,7 +9,8 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-from .model import CLASS_HEADS, REG_HEADS, ESACPredictor, _torch, make_net
+from .model import (CLASS_HEADS, MAX_MEMBERS, REG_HEADS, ESACPredictor, _torch, is_ensemble,
+                    make_net)
 from .rule import check_rule
 
 FORMAT = "pneugym-esac-1"
@@ -17,8 +18,9 @@ FORMAT = "pneugym-esac-1"
 
 def save(path: str | Path, net, meta: Mapping[str, Any]) -> None:
     """Write the weights and ``meta`` (JSON-able: layout, architecture, rule, provenance) in one
-    file, atomically."""
+    file, atomically; an ensemble's number of networks is recorded as ``members``."""
     torch = _torch()
+    meta = {**meta, "members": len(net.members)} if is_ensemble(net) else dict(meta)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
@@ -96,8 +98,9 @@ def _meta_error(path: Path, key: str, value: Any, expected: str) -> ValueError:
 
 
 def _read_meta(path: Path, blob: Mapping[str, Any]) -> dict[str, Any]:
-    """The metadata of an ESAC model, checked before anything is built from it: ``n_in`` and
-    ``hidden`` (bounded: :data:`MAX_HIDDEN_WIDTH`, :data:`MAX_HIDDEN_LAYERS`), the observation
+    """The metadata of an ESAC model, checked before anything is built from it: ``n_in``,
+    ``hidden`` (bounded: :data:`MAX_HIDDEN_WIDTH`, :data:`MAX_HIDDEN_LAYERS`) and ``members``
+    (an ensemble's networks, 1 to :data:`~agents.esac.model.MAX_MEMBERS`), the observation
     ``layout`` (:func:`agents.learned.check_layout_record`) and ``n_in`` consistent with it,
     ``delay_input``, ``lookahead_s`` and the tuned ``rule`` (:func:`check_rule`). ValueError
     (:class:`~agents.learned.LayoutMismatchError` for the layout) names the file and key."""
@@ -127,6 +130,10 @@ def _read_meta(path: Path, blob: Mapping[str, Any]) -> dict[str, Any]:
             count(h) and 1 <= h <= MAX_HIDDEN_WIDTH for h in hidden)):
         raise _meta_error(path, "hidden", hidden, f"a list of at most {MAX_HIDDEN_LAYERS} layer "
                           f"widths from 1 to {MAX_HIDDEN_WIDTH}")
+    members = meta.get("members", 1)
+    if not count(members) or not 1 <= members <= MAX_MEMBERS:
+        raise _meta_error(path, "members", members, f"the ensemble's number of networks, an "
+                          f"integer from 1 to {MAX_MEMBERS}")
     if "layout" not in meta:
         raise _meta_error(path, "layout", None, "the observation layout it was trained on")
     layout = check_layout_record(meta["layout"], f"{path}: its metadata's layout")
@@ -156,18 +163,21 @@ def load(path: str | Path) -> tuple[ESACPredictor, dict[str, Any]]:
     blob, stored = _read_blob(path)
     meta = _read_meta(path, blob)
     widths = [int(meta["n_in"]), *meta["hidden"], len(CLASS_HEADS) + len(REG_HEADS)]
-    need = 4 * sum(a * b + b for a, b in zip(widths, widths[1:]))
+    members = int(meta.get("members", 1))
+    need = 4 * members * sum(a * b + b for a, b in zip(widths, widths[1:]))
+    what = f"n_in {meta['n_in']}, hidden {meta['hidden']}" + (
+        f", {members} members" if members > 1 else "")
     if need > stored:
-        raise ValueError(f"{path}: its metadata describes a network (n_in {meta['n_in']}, hidden "
-                         f"{meta['hidden']}) of {need:,} bytes of weights, but the file holds "
-                         f"{stored:,}: altered or damaged; pneugym does not build it")
-    net = make_net(int(meta["n_in"]), meta["hidden"])
+        raise ValueError(f"{path}: its metadata describes a network ({what}) of {need:,} bytes "
+                         f"of weights, but the file holds {stored:,}: altered or damaged; "
+                         f"pneugym does not build it")
+    net = make_net(int(meta["n_in"]), meta["hidden"], members)
     try:
         net.load_state_dict(blob.get("state_dict"))
     except (RuntimeError, TypeError, AttributeError) as exc:
         first = (str(exc).strip().splitlines() or [""])[0][:200]
         raise ValueError(f"{path}: its weights do not fit the network its metadata describes "
-                         f"(n_in {meta['n_in']}, hidden {meta['hidden']}): {first}") from None
+                         f"({what}): {first}") from None
     state = net.state_dict()
     bad = [k for k, t in state.items() if not torch_isfinite_all(t)]
     bad += [k for k in ("in_std", "out_std") if k not in bad and not bool((state[k] > 0).all())]

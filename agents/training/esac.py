@@ -62,7 +62,7 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
                          lr=float(fit["lr"]), weight_decay=float(fit.get("weight_decay", 0.0)),
                          seed=seed, patience=int(fit.get("patience", 15)),
                          time_loss=fit.get("time_loss", "mse"), groups=episode,
-                         progress=progress)
+                         progress=progress, members=int(fit.get("ensemble", 1)))
     pred = esac.ESACPredictor(net, layout, delay_input, lookahead_s)
     acc = esac.accuracy(pred, held)
     atomic_write_json(out / "accuracy.json", acc)

@@ -118,7 +118,9 @@ def config_schema(algo: str) -> Section:
                             "epochs": integer(1), "batch_size": integer(1),
                             "lr": number(0, lo_open=True), "weight_decay": number(0),
                             "patience": integer(1), "time_loss": choice(["mse", "l1"]),
-                            "delay_input": boolean}, "fit entry (agents.esac.fit)",
+                            "delay_input": boolean,
+                            "ensemble": integer(1, esac.MAX_MEMBERS)},
+                           "fit entry (agents.esac.fit)",
                            required=("hidden", "epochs", "batch_size", "lr")),
             "rule_grid": Section({k: list_of(rule_value(k), 1, 1000, "values")
                                   for k in esac.RULE_DEFAULTS}, "ESAC rule parameter",

@@ -93,7 +93,9 @@ class NumpyNetwork:
     """An MLP in numpy (float32): ``(x - in_mean) / in_std``, then Linear layers each followed by
     its activation, then the output (``softmax`` or none). Built from :func:`network_arrays`'
     arrays (``weights.npz``); ESAC's also carry ``out_mean`` and ``out_std`` (the regression
-    heads' standardisation, applied by the predictor)."""
+    heads' standardisation, applied by the predictor). An ESAC ensemble's (``members`` K)
+    hold each member's layers as ``m{j}_weight_{k}``, ``m{j}_bias_{k}`` and ``combine``, how
+    each output combines the members' (``min``, ``max`` or ``mean``)."""
 
     def __init__(self, arrays: Mapping[str, np.ndarray], where: str = "the weights"):
         def get(name: str) -> np.ndarray:
@@ -114,17 +116,21 @@ class NumpyNetwork:
         self.n_in = int(self.in_mean.shape[0])
         # (x - 0) / 1 is x: skipped (SB3 networks have no input normalisation)
         self._normalise = bool(np.any(self.in_mean != 0) or np.any(self.in_std != 1))
-        self.layers: list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]] = []
-        width = self.n_in
-        for k, act in enumerate(acts):
-            w = _float32(get(f"weight_{k}"), f"{where}: weight_{k}", ndim=2)
-            b = _float32(get(f"bias_{k}"), f"{where}: bias_{k}", ndim=1)
-            if w.shape[1] != width or b.shape != (w.shape[0],):
-                raise ValueError(f"{where}: layer {k} has weight {w.shape} and bias {b.shape}; "
-                                 f"expected ({b.shape[0]}, {width}) and ({w.shape[0]},)")
-            self.layers.append((np.ascontiguousarray(w.T), b, _NUMPY_ACT[act]))
-            width = w.shape[0]
-        self.n_out = width
+        n_members = int(get("members").reshape(())) if "members" in arrays else 1
+        if not 1 <= n_members <= 32:
+            raise ValueError(f"{where}: members = {n_members}; an ensemble has 1 to 32")
+        prefixes = [""] if "members" not in arrays else [f"m{j}_" for j in range(n_members)]
+        self.members = [self._stack(get, pre, acts, where) for pre in prefixes]
+        self.layers = self.members[0]
+        self.n_out = self.layers[-1][0].shape[1]
+        self.combine: list[str] | None = None
+        if "members" in arrays:
+            self.combine = [str(c) for c in get("combine").reshape(-1)]
+            if len(self.combine) != self.n_out or set(self.combine) - {"min", "max", "mean"}:
+                raise ValueError(f"{where}: combine {self.combine}: one of 'min', 'max', "
+                                 f"'mean' per output ({self.n_out})")
+            if any(m[-1][0].shape[1] != self.n_out for m in self.members):
+                raise ValueError(f"{where}: the members' outputs differ in number")
         self.activations = acts
         self.output = output
         self.out_mean = self.out_std = None
@@ -132,13 +138,39 @@ class NumpyNetwork:
             self.out_mean = _float32(get("out_mean"), f"{where}: out_mean", ndim=1)
             self.out_std = _float32(get("out_std"), f"{where}: out_std", ndim=1)
 
+    def _stack(self, get: Callable[[str], np.ndarray], pre: str, acts: list[str], where: str
+               ) -> list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]]:
+        """The Linear layers ``{pre}weight_k``, ``{pre}bias_k`` with their activations."""
+        layers = []
+        width = self.n_in
+        for k, act in enumerate(acts):
+            w = _float32(get(f"{pre}weight_{k}"), f"{where}: {pre}weight_{k}", ndim=2)
+            b = _float32(get(f"{pre}bias_{k}"), f"{where}: {pre}bias_{k}", ndim=1)
+            if w.shape[1] != width or b.shape != (w.shape[0],):
+                raise ValueError(f"{where}: layer {pre}{k} has weight {w.shape} and bias "
+                                 f"{b.shape}; expected ({b.shape[0]}, {width}) and "
+                                 f"({w.shape[0]},)")
+            layers.append((np.ascontiguousarray(w.T), b, _NUMPY_ACT[act]))
+            width = w.shape[0]
+        return layers
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """The outputs (B, n_out) [float32] for inputs ``x`` (B, n_in)."""
-        h = np.asarray(x, dtype=np.float32)
+        z = np.asarray(x, dtype=np.float32)
         if self._normalise:
-            h = (h - self.in_mean) / self.in_std
-        for w_t, b, act in self.layers:
-            h = act(h @ w_t + b)
+            z = (z - self.in_mean) / self.in_std
+        outs = []
+        for layers in self.members:
+            h = z
+            for w_t, b, act in layers:
+                h = act(h @ w_t + b)
+            outs.append(h)
+        h = outs[0]
+        if self.combine is not None:
+            o = np.stack(outs)
+            h = np.where(np.array([c == "min" for c in self.combine]), o.min(axis=0),
+                         np.where(np.array([c == "max" for c in self.combine]), o.max(axis=0),
+                                  o.mean(axis=0))).astype(np.float32)
         if self.output == "softmax":
             e = np.exp(h - h.max(axis=1, keepdims=True))
             h = e / e.sum(axis=1, keepdims=True)
@@ -146,7 +178,8 @@ class NumpyNetwork:
 
     def __repr__(self) -> str:
         widths = [self.n_in] + [w.shape[1] for w, _, _ in self.layers]
-        return f"NumpyNetwork({widths}, {self.activations}, output={self.output!r})"
+        k = f", members={len(self.members)}" if self.combine is not None else ""
+        return f"NumpyNetwork({widths}, {self.activations}, output={self.output!r}{k})"
 
 
 def _float32(a: np.ndarray, where: str, ndim: int) -> np.ndarray:
@@ -270,9 +303,15 @@ def network_arrays(policy: Any) -> dict[str, np.ndarray]:
     ``activations`` (after each layer), ``output`` and, for ESAC, ``out_mean``, ``out_std``."""
     kind = _kind(policy)
     src = getattr(policy, "source", "the policy")
+    members: list[tuple[list[np.ndarray], list[np.ndarray]]] = []
     if kind == "esac":
+        from agents.esac import ENSEMBLE_COMBINE, is_ensemble
+
         net = policy.predictor.net
-        ws, bs, acts = _linear_stack(net.body, f"{src}: the ESAC network")
+        bodies = list(net.members) if is_ensemble(net) else [net.body]
+        for body in bodies:
+            ws, bs, acts = _linear_stack(body, f"{src}: the ESAC network")
+            members.append((ws, bs))
         out: dict[str, np.ndarray] = {
             "in_mean": net.in_mean.detach().numpy().astype(np.float32),
             "in_std": net.in_std.detach().numpy().astype(np.float32),
@@ -297,6 +336,15 @@ def network_arrays(policy: Any) -> dict[str, np.ndarray]:
         out = {"in_mean": np.zeros(n_in, np.float32), "in_std": np.ones(n_in, np.float32),
                "output": np.array(output)}
     out["activations"] = np.array(acts)
+    if len(members) > 1:  # an ESAC ensemble
+        from agents.esac import CLASS_HEADS, REG_HEADS
+
+        out["members"] = np.array(len(members))
+        out["combine"] = np.array([ENSEMBLE_COMBINE[h] for h in (*CLASS_HEADS, *REG_HEADS)])
+        for j, (ws, bs) in enumerate(members):
+            for k, (w, b) in enumerate(zip(ws, bs)):
+                out[f"m{j}_weight_{k}"], out[f"m{j}_bias_{k}"] = w, b
+        return out
     for k, (w, b) in enumerate(zip(ws, bs)):
         out[f"weight_{k}"], out[f"bias_{k}"] = w, b
     return out
