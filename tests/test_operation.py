@@ -957,3 +957,35 @@ def test_cli_operates_the_users_rig(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main(["operate", *argv, "--db", str(db)])
         assert msg in capsys.readouterr().err
+
+
+def test_adaptive_esac_fine_tunes_an_ensemble_member_by_member(tiny_esac, tmp_path, monkeypatch):
+    """An ensemble model (``fit.ensemble``) adapts as a single one does: each candidate is an
+    ensemble of as many members, recorded whole, and the running model stays one."""
+    from agents import esac
+    import agents.adaptive as A
+    from agents.adaptive import _net_from_bytes
+
+    _, _, (x, y, mask, ep) = tiny_esac
+    ens, _ = esac.fit(x, y, mask, hidden=(8,), epochs=2, groups=ep, progress=False, members=2)
+    model = tmp_path / "ens.pt"
+    esac.save(model, ens, {"layout": CutOffVectorEnv(num_envs=1, history=2).observation_layout(),
+                           "n_in": x.shape[1], "hidden": [8], "delay_input": False,
+                           "lookahead_s": [], "rule": {"margin": 0.6, "max_time_increase": 1.0}})
+    orig = A.AdaptiveESAC.__init__
+
+    def small(self, spec, env, seed=0, **kw):
+        orig(self, spec, env, seed, adapt_every=20, window=40, epochs=2, explore=0.3,
+             explore_range=(0.6, 1.4))
+
+    monkeypatch.setattr(A.AdaptiveESAC, "__init__", small)
+    db = tmp_path / "e.duckdb"
+    rid = operate(Scenario("steady"), f"esac-adaptive={model}", strokes=60, db=db, block=20,
+                  progress=False)
+    with Record(db, read_only=True) as rec:
+        rows = rec.con.execute("SELECT blob FROM models WHERE run_id = ? AND kind = 'esac'",
+                               [rid]).fetchall()
+    assert rows  # (the first tuning with enough strokes)
+    for (blob,) in rows:
+        net = _net_from_bytes(blob)
+        assert esac.is_ensemble(net) and len(net.members) == 2
