@@ -117,7 +117,7 @@ class NumpyNetwork:
         # (x - 0) / 1 is x: skipped (SB3 networks have no input normalisation)
         self._normalise = bool(np.any(self.in_mean != 0) or np.any(self.in_std != 1))
         n_members = int(get("members").reshape(())) if "members" in arrays else 1
-        if not 1 <= n_members <= 32:
+        if not 1 <= n_members <= 32:  # (agents.esac.model.MAX_MEMBERS: no torch needed here)
             raise ValueError(f"{where}: members = {n_members}; an ensemble has 1 to 32")
         prefixes = [""] if "members" not in arrays else [f"m{j}_" for j in range(n_members)]
         self.members = [self._stack(get, pre, acts, where) for pre in prefixes]
