@@ -314,6 +314,30 @@ def test_export_refuses_what_the_runtimes_would_compute_differently(tmp_path, mo
     assert not any(tmp_path.iterdir())
 
 
+def test_numpy_runtime_combines_an_ensemble_as_its_model_and_refuses_a_bad_one():
+    """The numpy network of an ensemble is every member combined head by head as torch's
+    (a member alone differs); ``members`` out of range, an unknown or missing ``combine`` and a
+    missing member's layer are named."""
+    pol = esac_ensemble_policy()
+    arrays = ex.network_arrays(pol)
+    assert int(arrays["members"]) == 2 and list(arrays["combine"]) == [
+        esac.ENSEMBLE_COMBINE[h] for h in (*esac.CLASS_HEADS, *esac.REG_HEADS)]
+    x = np.random.default_rng(2).normal(size=(64, HISTORY * 7)).astype(np.float32)
+    net = ex.NumpyNetwork(arrays)
+    assert ex.max_difference(net(x), pol.predictor.backend(x))["max_ratio"] <= 1.0
+    first = ex.NumpyNetwork({k: v for k, v in arrays.items() if k not in ("members", "combine")
+                             and not k.startswith("m1_")} | {
+        k[3:]: v for k, v in arrays.items() if k.startswith("m0_")})
+    assert ex.max_difference(first(x), net(x))["max_ratio"] > 1.0
+    for change, match in (({"members": np.array(40)}, "members = 40"),
+                          ({"combine": np.array(["min"] * 6 + ["median"])}, "combine"),
+                          ({"members": np.array(3)}, "has no 'm2_weight_0'")):
+        with pytest.raises(ValueError, match=match):
+            ex.NumpyNetwork({**arrays, **change})
+    with pytest.raises(ValueError, match="has no 'combine'"):
+        ex.NumpyNetwork({k: v for k, v in arrays.items() if k != "combine"})
+
+
 @pytest.mark.parametrize("victim", ["model.onnx", "weights.npz"])
 def test_a_changed_file_is_refused(exported, tmp_path, victim):
     import shutil
