@@ -587,7 +587,9 @@ def _net_from_bytes(blob: bytes) -> Any:
 def _hidden(net: Any) -> list[int]:
     import torch
 
-    body = net.members[0] if hasattr(net, "members") else net.body  # an ensemble's: its first
+    from .esac import is_ensemble
+
+    body = net.members[0] if is_ensemble(net) else net.body  # an ensemble's: its first
     return [m.out_features for m in body if isinstance(m, torch.nn.Linear)][:-1]
 
 
