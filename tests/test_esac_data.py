@@ -31,6 +31,12 @@ def test_rollouts_record_the_observation_at_the_cut(tmp_path):
     expect = data["t_cut"][:, None] - data["lag_s"][None, :]
     np.testing.assert_allclose(t_lag[seen], expect[seen], atol=1e-6)
     assert np.all(expect[~seen] < -1e-9)   # missing only where the episode had not begun
+    # condition overrides (a training config's env.conditions): drawn within them, cached apart
+    hi = esac.rollouts(tmp_path, 12, 3, history=2, progress=False, env_config={
+        "conditions": {"supply_pressure_gauge_pa": (5e5, 6e5), "load_mass_kg": 35.0}})
+    assert np.all((hi["supply_pressure_gauge_pa"] >= 5e5) & (hi["supply_pressure_gauge_pa"] <= 6e5))
+    assert np.all(hi["load_mass_kg"] == 35.0)
+    assert len(list(tmp_path.glob("esac-rollouts-*.npz"))) == 2
 
 
 def test_samples_are_one_per_recorded_lag():

@@ -78,6 +78,16 @@ def test_configs_and_refusals(tmp_path):
                                      r"option"),
     ("esac", ["rule_grid.time_demand_s=[1.0]"], r"rule_grid.time_demand_s is not tuned"),
     ("esac", ["budget=quick"], r"--set budget=quick: budget is set by train.py \(give --budget\)"),
+    ("esac", ["env.conditions.load_mass_kg=[40, 2]"], r"--set env.conditions.load_mass_kg=\[40, "
+                                                      r"2\]: env.conditions = .*need finite low "
+                                                      r"<= high"),
+    ("esac", ["env.conditions.suply_pressure_gauge_pa=3e5"], r"did you mean "
+                                                             r"'supply_pressure_gauge_pa'"),
+    ("esac", ["env.conditions.family=true"], r"family is set by the preset"),
+    ("esac", ["env.conditions=[1, 2]"], r"env.conditions = \[1, 2\]: expected a section of "
+                                        r"ConditionSpace fields"),
+    ("ppo", ["env.conditions.load_mass_kg=-1"], r"env.conditions = .*load_mass_kg = -1.0 is "
+                                                r"invalid"),
 ])
 def test_config_errors_are_refused_before_anything_is_written(tmp_path, nothing_runs, algo,
                                                               overrides, match):
@@ -147,3 +157,41 @@ def test_every_shipped_config_passes_the_check():
             training.load_config(algo, budget, seed=0)
     cfg = training.load_config("ppo", overrides=["timesteps=1e5", "algo.n_steps=512.0"])
     assert cfg["timesteps"] == 100_000 and isinstance(cfg["algo"]["n_steps"], int)
+
+
+def test_condition_overrides_reach_training_and_validation():
+    """``env.conditions`` narrows or widens the preset's ranges for the rollouts, the held-out
+    test and the validation conditions the rule or checkpoint is chosen on."""
+    from agents.training.validation import validation_conditions
+
+    cfg = training.load_config("esac", "quick", overrides=[
+        "env.conditions.supply_pressure_gauge_pa=[450000, 600000]",
+        "env.conditions.load_mass_kg=35"])
+    cond = cfg["env"]["conditions"]
+    assert cond == {"supply_pressure_gauge_pa": [450000, 600000], "load_mass_kg": 35}
+    conds = validation_conditions(cfg["preset"], 20, 900000, None, cond)
+    assert all(450000 <= c.supply_pressure_gauge_pa <= 600000 and c.load_mass_kg == 35
+               for c in conds)
+    plain = validation_conditions(cfg["preset"], 20, 900000)
+    assert any(c.supply_pressure_gauge_pa < 450000 for c in plain)
+    # the other fields keep the preset's ranges and draws
+    assert [c.friction_scale for c in conds] == [c.friction_scale for c in plain]
+
+
+def test_a_rig_operating_outside_the_training_conditions_is_warned_of(tmp_path, nothing_runs):
+    import warnings
+
+    from agents.training import TrainingRangeWarning
+    from pneugym.params import RigParams
+
+    rig = RigParams().with_(supply_pressure_gauge_pa=550_000.0, load_mass_kg=35.0)
+    with pytest.warns(TrainingRangeWarning, match=r"supply 5.5 bar g outside 1.5-5; load 35 kg "
+                                                  r"outside 5-30.*env.conditions"):
+        with pytest.raises(AssertionError, match="training started"):
+            training.train("esac", tmp_path / "a", budget="quick", rig=rig, progress=False)
+    with warnings.catch_warnings():  # trained over the range it runs at: nothing to say
+        warnings.simplefilter("error", TrainingRangeWarning)
+        with pytest.raises(AssertionError, match="training started"):
+            training.train("esac", tmp_path / "b", budget="quick", rig=rig, progress=False,
+                           overrides=["env.conditions.supply_pressure_gauge_pa=[150000, 600000]",
+                                      "env.conditions.load_mass_kg=[2, 40]"])

@@ -27,7 +27,8 @@ from .rundir import RUN_FILE, atomic_write_json, read_run, replay_file, run_file
 from .seeds import MAX_TRAINING_SEED, check_seed
 from .signals import StopRequest, TrainingInterrupted, stop_on_signals
 from .trainer import train
-from .validation import (choose_decision, decision_grids, oracle_fraction, sweep_decisions,
+from .validation import (TrainingRangeWarning, choose_decision, decision_grids,
+                         operating_point_outside, oracle_fraction, sweep_decisions,
                          validation_conditions, validation_references)
 
 __all__ = ["ALGOS", "CONFIG_DIR", "ConfigError", "check_config", "load_config", "DEFAULT_POLICIES",
@@ -36,4 +37,4 @@ __all__ = ["ALGOS", "CONFIG_DIR", "ConfigError", "check_config", "load_config", 
            "read_run", "replay_file", "run_files", "MAX_TRAINING_SEED", "check_seed",
            "StopRequest", "TrainingInterrupted", "stop_on_signals", "train", "choose_decision",
            "decision_grids", "oracle_fraction", "sweep_decisions", "validation_conditions",
-           "validation_references"]
+           "validation_references", "TrainingRangeWarning", "operating_point_outside"]

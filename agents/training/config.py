@@ -196,7 +196,8 @@ def check_config(cfg: dict[str, Any], algo: str, seed: int | None = None,
         for n in range(len(parts), 0, -1):
             if ".".join(parts[:n]) in origins:
                 return origins[".".join(parts[:n])]
-        return source
+        below = [v for k, v in origins.items() if k.startswith(key + ".")]
+        return "; ".join(below) if below else source  # a section set entry by entry
 
     _walk(cfg, config_schema(algo), "", where)
 

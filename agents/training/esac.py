@@ -39,6 +39,9 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
     for flag in ("observe_rig", "observe_commissioning"):
         if cfg["env"].get(flag):
             env_cfg[flag] = True
+    conditions = cfg["env"].get("conditions")
+    if conditions:  # the preset's ranges overridden (rollouts, held-out test, validation)
+        env_cfg["conditions"] = dict(conditions)
     if cfg.get("rig") is not None:
         env_cfg["rig"] = cfg["rig"]
     rig_cfg = {k: v for k, v in env_cfg.items() if k != "history"}
@@ -72,7 +75,7 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
         f"{k} {v:.4g}" for k, v in acc.items() if isinstance(v, float)), flush=True)
     # the rule: tuned on the validation conditions
     conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]),
-                                  cfg.get("rig"))
+                                  cfg.get("rig"), conditions)
     grid_cfg = cfg["rule_grid"]
     keys = list(grid_cfg)
     grid = [dict(zip(keys, vals)) for vals in itertools.product(*(grid_cfg[k] for k in keys))]
@@ -95,7 +98,8 @@ def train_esac(cfg: dict[str, Any], out: Path, seed: int, progress: bool, record
             "data": {"train_rollouts": int(data["obs"].shape[0]), "samples": int(x.shape[0]),
                      "seed": seed,
                      "test_rollouts": int(held["obs"].shape[0]), "test_seed": int(test["seed"]),
-                     "preset": cfg["preset"], "pneugym_sources": esac.source_hash()},
+                     "preset": cfg["preset"], "conditions": conditions or None,
+                     "pneugym_sources": esac.source_hash()},
             "provenance": provenance()}
     esac.save(out / "model.pt", net, meta)
     best_frac = oracle_fraction(best["return"], refs)

@@ -129,7 +129,7 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
     val = cfg["validation"]
     check_seed("validation", int(val["seed"]), int(val["episodes"]))
     conds = validation_conditions(cfg["preset"], int(val["episodes"]), int(val["seed"]),
-                                  cfg.get("rig"))
+                                  cfg.get("rig"), env_cfg.get("conditions"))
     eval_env = TrainingVecEnv(conditions=conds, seed=int(val["seed"]), **env_cfg)
     print(f"validation references ({len(conds)} conditions, conventional and oracle) ...",
           flush=True)

@@ -80,6 +80,34 @@ def _rig(v: Any) -> Any:
         raise Bad(f"a rig file or a mapping of rig fields ({exc})") from None
 
 
+#: ConditionSpace fields that a training configuration's ``env.conditions`` cannot set
+_NOT_CONDITIONS = {"family": "is set by the preset (family, family-cylinders)",
+                   "rig_changes": "is the top-level rig (or --rig)"}
+
+
+def _conditions(v: Any) -> Any:
+    """``env.conditions``: overrides of the preset's condition ranges
+    (:class:`~pneugym.envs.conditions.ConditionSpace` fields, SI units: a number or a
+    ``[low, high]`` pair), e.g. ``{supply_pressure_gauge_pa: [150000, 600000]}``; checked by
+    the space itself."""
+    from pneugym.envs.conditions import ConditionSpace
+
+    if v is None:
+        return None
+    expected = ("a section of ConditionSpace fields, each a number or [low, high] in SI units "
+                "(e.g. supply_pressure_gauge_pa: [150000, 600000], load_mass_kg: [2, 40])")
+    if not isinstance(v, Mapping):
+        raise Bad(expected, type_hint(v))
+    for k in v:
+        if k in _NOT_CONDITIONS:
+            raise Bad(expected, f"{k} {_NOT_CONDITIONS[k]}")
+    try:
+        ConditionSpace().with_(**{str(k): x for k, x in v.items()})
+    except (ValueError, TypeError) as exc:
+        raise Bad(expected, str(exc)) from None
+    return {str(k): list(x) if isinstance(x, (list, tuple)) else x for k, x in v.items()}
+
+
 def config_schema(algo: str) -> Section:
     """Every key a configuration of ``algo`` may hold, with its check."""
     from agents import esac
@@ -106,9 +134,9 @@ def config_schema(algo: str) -> Section:
         fields = {
             **common,
             "env": Section({"history": integer(1, MAX_HISTORY), "observe_rig": boolean,
-                            "observe_commissioning": boolean},
+                            "observe_commissioning": boolean, "conditions": _conditions},
                            "ESAC environment option (ESAC trains on the environment's defaults: "
-                           "only history, observe_rig and observe_commissioning are "
+                           "only history, observe_rig, observe_commissioning and conditions are "
                            "configurable)",
                            required=("history",)),
             "test": Section({"episodes": integer(1, 100_000), "seed": seed_spec},
@@ -148,7 +176,7 @@ def config_schema(algo: str) -> Section:
     # the values of the other options are checked by the environment (check_config builds it)
     env = {k: anything for k in ENV_OPTIONS if k not in env_refused}
     env.update(num_envs=integer(1, 4096), history=integer(1, MAX_HISTORY),
-               conditions=mapping)
+               conditions=_conditions)
     no_class = "is a class, which a YAML config cannot give (train.py uses SB3's default)"
     fields = {
         **common,

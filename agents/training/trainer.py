@@ -43,6 +43,25 @@ def _threads(cfg: Mapping[str, Any]) -> None:
     torch.set_num_threads(int(cfg.get("torch_threads", 1)))
 
 
+def _warn_outside(cfg: dict[str, Any]) -> None:
+    """A :class:`~agents.training.validation.TrainingRangeWarning` when the rig's own operating
+    point lies outside the conditions the run trains on."""
+    import warnings
+
+    from .validation import TrainingRangeWarning, operating_point_outside
+
+    if cfg.get("rig") is None:
+        return
+    what = operating_point_outside(cfg["preset"], cfg["rig"],
+                                   (cfg.get("env") or {}).get("conditions"))
+    if what:
+        warnings.warn(f"the rig's own operating point lies outside the conditions this run "
+                      f"trains on (preset {cfg['preset']}): {what}; train over the range the "
+                      f"rig runs at, e.g. --set 'env.conditions.supply_pressure_gauge_pa="
+                      f"[LOW, HIGH]' --set 'env.conditions.load_mass_kg=[LOW, HIGH]' (SI units)",
+                      TrainingRangeWarning, stacklevel=3)
+
+
 def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int | None = None,
           seed: int = 0, resume: bool = False, budget: str = "default",
           config: str | Path | None = None, overrides: Sequence[str] = (),
@@ -100,6 +119,7 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
         prev = None
     elif any(out.iterdir()):
         raise ValueError(occupied(out, prev))
+    _warn_outside(cfg)
     _threads(cfg)
     from agents import esac
     from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: F401  (load the plant's code now)

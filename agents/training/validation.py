@@ -1,6 +1,7 @@
 """Validation during training: fixed conditions drawn from the training preset
 (:func:`validation_conditions`), the conventional and oracle returns on them
-(:func:`validation_references`, cached) and the :func:`oracle_fraction`; a model's decision rule
+(:func:`validation_references`, cached) and the :func:`oracle_fraction`; whether a rig's own
+operating point lies inside the training conditions (:func:`operating_point_outside`); a model's decision rule
 swept over its grid in one batched run (:func:`sweep_decisions`) and the row to act by
 (:func:`choose_decision`)."""
 from __future__ import annotations
@@ -16,16 +17,41 @@ import numpy as np
 from .rundir import atomic_write_json
 
 
-def validation_conditions(preset: str, n: int, seed: int, rig: Any = None) -> list:
-    """``n`` fixed conditions drawn from ``preset`` (each from ``default_rng([seed, i])``);
-    ``rig`` (a rig file, mapping or RigParams) gives the operating point of the ``"rig"``
-    preset."""
+def validation_conditions(preset: str, n: int, seed: int, rig: Any = None,
+                          conditions: Mapping[str, Any] | None = None) -> list:
+    """``n`` fixed conditions drawn from ``preset`` (each from ``default_rng([seed, i])``) with
+    the training's ``conditions`` overrides (``env.conditions``, the ranges trained on); ``rig``
+    (a rig file, mapping or RigParams) gives the operating point of the ``"rig"`` preset."""
     from pneugym.envs.conditions import resolve
     from pneugym.rigfile import as_rig
 
     rig = as_rig(rig)
-    space = resolve(preset, rig=rig)
+    space = resolve(preset, conditions, rig=rig)
     return [space.sample(np.random.default_rng([seed, i]), rig) for i in range(n)]
+
+
+class TrainingRangeWarning(UserWarning):
+    """The rig's own operating point (its supply and load) lies outside the conditions a run
+    trains on."""
+
+
+def operating_point_outside(preset: str, rig: Any = None,
+                            conditions: Mapping[str, Any] | None = None) -> str | None:
+    """What of ``rig``'s own operating point (supply set-point, load) lies outside the ranges
+    ``preset`` with the ``conditions`` overrides draws (``None`` if nothing does), e.g.
+    ``"supply 6.0 bar g outside 1.5-5.0"``."""
+    from pneugym.envs.conditions import resolve
+    from pneugym.rigfile import as_rig
+
+    rig = as_rig(rig)
+    space = resolve(preset, conditions, rig=rig)
+    out = []
+    for name, value, (lo, hi), unit, scale in (
+            ("supply", rig.supply_pressure_gauge_pa, space.supply_pressure_gauge_pa, "bar g", 1e-5),
+            ("load", rig.load_mass_kg, space.load_mass_kg, "kg", 1.0)):
+        if not lo - 1e-9 * abs(lo) <= value <= hi + 1e-9 * abs(hi):
+            out.append(f"{name} {value * scale:g} {unit} outside {lo * scale:g}-{hi * scale:g}")
+    return "; ".join(out) or None
 
 
 def validation_references(conds: Sequence[Any], env_config: Mapping[str, Any], seed: int,
