@@ -45,9 +45,10 @@ def points_range() -> dict[str, list[float]]:
     return rng
 
 
-def retrain(name: str, rig, out: Path, budget: str, train_range: str, progress: bool) -> str:
+def retrain(name: str, rig, out: Path, budget: str, train_range: str, progress: bool,
+            overrides: tuple[str, ...] = ()) -> str:
     """``esac_retrained=PATH`` of the ESAC trained for ``rig`` into ``out / name / esac``
-    (reused when finished there)."""
+    (reused when finished there); ``overrides``: more ``--set`` entries of its training."""
     from agents import training
 
     run = out / name / "esac"
@@ -55,8 +56,8 @@ def retrain(name: str, rig, out: Path, budget: str, train_range: str, progress: 
     if model is None:
         over = [] if train_range == "preset" else [
             f"env.conditions.{k}=[{lo!r}, {hi!r}]" for k, (lo, hi) in points_range().items()]
-        training.train("esac", run, budget=budget, rig=rig, overrides=over, progress=progress,
-                       force=(run / training.RUN_FILE).is_file())
+        training.train("esac", run, budget=budget, rig=rig, overrides=[*over, *overrides],
+                       progress=progress, force=(run / training.RUN_FILE).is_file())
         model = training.model_path(run)
     return f"esac_retrained={model}"
 
@@ -72,6 +73,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--train-range", choices=("points", "preset"), default="points",
                     help="the retrained ESAC's training conditions: the range of the suite's "
                          "operating points (default) or its config's preset alone")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a configuration entry of the retrained ESAC (as pneugym train --set; "
+                         "repeatable)")
     ap.add_argument("--runs", default="runs", help="where the main job's policies are")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per operating point")
     ap.add_argument("--seed", type=int, default=1_000_000, help="evaluation seed")
@@ -100,7 +104,7 @@ def main(argv=None) -> dict:
         rig = apply_changes(RigParams(), rigs[name])
         rig_file = rig.save(out / name / "rig.json")
         t0 = time.perf_counter()
-        mine = retrain(name, rig, out, args.budget, args.train_range, progress)
+        mine = retrain(name, rig, out, args.budget, args.train_range, progress, tuple(args.set))
         train_s = time.perf_counter() - t0
         pols = ["conventional", "gaslaw", "gaslaw-rig", zero_shot[0].replace("esac=", "esac_main="),
                 zero_shot[1].replace("esac-family=", "esac_family="),
