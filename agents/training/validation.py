@@ -1,9 +1,9 @@
 """Validation during training: fixed conditions drawn from the training preset
 (:func:`validation_conditions`), the conventional and oracle returns on them
 (:func:`validation_references`, cached) and the :func:`oracle_fraction`; whether a rig's own
-operating point lies inside the training conditions (:func:`operating_point_outside`); a model's decision rule
-swept over its grid in one batched run (:func:`sweep_decisions`) and the row to act by
-(:func:`choose_decision`)."""
+operating point lies inside the training conditions (:func:`operating_point_outside`); a
+model's decision rule swept over its grid in one batched run (:func:`sweep_decisions`) and the
+row to act by (:func:`choose_decision`)."""
 from __future__ import annotations
 
 import hashlib
@@ -39,7 +39,7 @@ def operating_point_outside(preset: str, rig: Any = None,
                             conditions: Mapping[str, Any] | None = None) -> str | None:
     """What of ``rig``'s own operating point (supply set-point, load) lies outside the ranges
     ``preset`` with the ``conditions`` overrides draws (``None`` if nothing does), e.g.
-    ``"supply 6.0 bar g outside 1.5-5.0"``."""
+    ``"supply 6 bar g outside 1.5-5"``."""
     from pneugym.envs.conditions import resolve
     from pneugym.rigfile import as_rig
 
