@@ -3,6 +3,7 @@
 --runs, --out)."""
 import json
 import math
+import re
 
 import pytest
 
@@ -150,3 +151,24 @@ def test_no_progress_hides_the_progress_bars(tmp_path, capsys):
     without = cli.main(argv + ["--out", str(tmp_path / "b"), "--no-progress"])
     assert "nominal suite" not in capsys.readouterr().err
     assert without["suites"]["nominal"]["episodes"] == with_bar["suites"]["nominal"]["episodes"]
+
+
+def test_the_points_suite_takes_the_users_operating_points(tmp_path, capsys):
+    res = cli.main(["--policies", "endstroke", "--suite", "points", "--points", "4:20", "6:40",
+                    "--episodes", "1", "--out", str(tmp_path), "--no-progress"])
+    suite = res["suites"]["points"]
+    assert suite["conditions"] == ["4bar-20kg", "6bar-40kg"]
+    assert res["config"]["points"] == [[4.0, 20.0], [6.0, 40.0]]
+    eps = [e for e in suite["episodes"] if e["policy"] == "endstroke"]
+    assert [(e["supply_pressure_gauge_pa"], e["load_mass_kg"]) for e in eps] == \
+        [(4e5, 20.0), (6e5, 40.0)]
+    for argv, match in (
+            (["--suite", "nominal", "--points", "4:20"], "give --suite points"),
+            (["--suite", "points", "--points", "4-20"], "expected BAR:KG"),
+            (["--suite", "points", "--points", "25:5"], r"operating point 25 bar g / 5 kg: "
+                                                      r"RigParams.supply_pressure_gauge_pa"),
+            (["--suite", "points", "--points", "4:20", "4:20"], "given twice")):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["--policies", "endstroke", "--out", str(tmp_path / "x"), *argv])
+        assert exc.value.code == 2 and re.search(match, capsys.readouterr().err)
+        assert not (tmp_path / "x").exists()

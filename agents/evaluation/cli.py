@@ -6,6 +6,7 @@ examples:
       --suite robustness --episodes 3 --seed 1000000 --out results
   pneugym evaluate --policies gaslaw esac=runs/esac esac10=runs/esac:max_time_increase=0.1
   pneugym evaluate --rig my_rig.yaml --runs runs/my_rig   # on your rig (policies trained for it)
+  pneugym evaluate --rig my_rig.yaml --suite points --points 4:20 6:40   # at your operating points
   python evaluate.py --policies gaslaw --no-progress   # the same command, from a checkout
 
 Suites (sensor noise 0.03 mm / 400 Pa in every episode):
@@ -74,8 +75,29 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--commission-nfev", type=int, default=None, metavar="N",
                     help="mpc-rig: iterations per start of each rig's commissioning fit "
                          "(default 40)")
+    ap.add_argument("--points", nargs="+", default=None, metavar="BAR:KG",
+                    help="the points suite's operating points, supply (bar gauge) and load "
+                         "(kg), e.g. --points 4:20 6:40 (default the transfer suite's: 1.5:5 "
+                         "2.5:10 4:20 5.5:35); with --suite points")
     add_parallel_arguments(ap, "the (suite, policy) pairs")
     return ap
+
+
+def parse_points(items: Sequence[str]) -> tuple[tuple[float, float], ...]:
+    """``--points`` values ``BAR:KG`` as checked ``(supply bar g, load kg)`` pairs."""
+    from .suites import check_points
+
+    pts = []
+    for item in items:
+        parts = item.split(":")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            pts.append((float(parts[0]), float(parts[1])))
+        except ValueError:
+            raise ValueError(f"--points {item!r}: expected BAR:KG, the supply in bar gauge and "
+                             f"the load in kg (e.g. 4:20)") from None
+    return check_points(pts)
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
@@ -96,6 +118,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         ap.error(f"--seed {args.seed}: episode seeds must be integers from 0 to 2**63 - 1; "
                  f"held-out results use {EVAL_SEED:,} and up")
     try:  # before any work: a wrong name, an unusable model or --out must not cost a training
+        points = None
+        if args.points is not None:
+            if args.suite != "points":
+                raise ValueError(f"--points {' '.join(args.points)} are the points suite's "
+                                 f"operating points: give --suite points (not {args.suite})")
+            points = parse_points(args.points)
         env_config = {} if args.rig is None else {"rig": as_rig(args.rig, "--rig")}
         check_policy_specs(args.policies)
         preloaded = load_models(args.policies, args.runs, args.budget, env_config)
@@ -114,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                        ray_address=args.ray_address, commission={
                            k: v for k, v in (("starts", args.commission_starts),
                                              ("max_nfev", args.commission_nfev))
-                           if v is not None})
+                           if v is not None}, points=points)
     print_table(results)
     write_outputs(results, args.out)
     print(f"\nwrote {args.out}/results.json, results.csv and plots")

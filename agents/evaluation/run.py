@@ -70,7 +70,7 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
                    policy: Policy | None = None, probe: CutOffVectorEnv | None = None,
                    eps: list[tuple[str, Conditions]] | None = None,
                    commission: Mapping[str, Any] | None = None,
-                   rigs: Sequence[str] | None = None
+                   rigs: Sequence[str] | None = None, points: Any = None
                    ) -> tuple[str, list[dict[str, Any]], float]:
     """``(name, per-episode records, wall time [s])`` of one policy on one suite (a task of
     :func:`pneugym.parallel.run_tasks` when evaluation runs in parallel). ``policy``: already
@@ -78,10 +78,11 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
     and ``eps`` (the suite's episodes): made here unless given; ``commission``: options of the
     commissioning fit of a policy that plans on a model of each rig (``mpc-rig``); ``rigs``:
     for such a policy, only the episodes of these rigs (a task per rig; the records are those
-    of a run of the whole suite)."""
+    of a run of the whole suite); ``points``: the ``points`` suite's operating points."""
     probe = probe or CutOffVectorEnv(num_envs=1, **env_config)
     if eps is None:
-        eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+        eps = suite_episodes(suite, episodes, seed, probe.config.get("rig"),
+                             points if suite == "points" else None)
     name = parse_spec(spec)[0]
     if policy is None:
         name, policy = make_named_policy(spec, probe)
@@ -137,7 +138,8 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
              env_config: dict | None = None,
              preloaded: Mapping[str, Policy] | None = None, progress: bool = True,
              workers: int = 1, ray_address: str | None = None,
-             commission: Mapping[str, Any] | None = None) -> dict[str, Any]:
+             commission: Mapping[str, Any] | None = None,
+             points: Any = None) -> dict[str, Any]:
     """Run every policy on every suite; returns the results.json structure. ``preloaded``:
     policies already loaded (:func:`~agents.evaluation.specs.load_models`), by name;
     ``progress``: a progress bar over the policies of each suite. ``workers`` /
@@ -145,8 +147,17 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     (each worker loads its model from the spec's path; the numbers are the same), and every rig
     of a suite a task of its own for a policy commissioned per rig (``mpc-rig``; its wall time
     is then its tasks' sum);
-    ``commission``: options of ``mpc-rig``'s commissioning fits (``starts``, ``max_nfev``)."""
+    ``commission``: options of ``mpc-rig``'s commissioning fits (``starts``, ``max_nfev``);
+    ``points``: the ``points`` suite's operating points, ``(supply bar g, load kg)`` pairs
+    (default the transfer suite's)."""
+    from .suites import check_points
+
     env_config = evaluation_env_config(env_config)
+    if points is not None:
+        points = check_points(points)
+        if "points" not in suites:
+            raise ValueError(f"operating points are given, but the suites are {list(suites)}: "
+                             f"they are the points suite's")
     check_policy_specs(policies)
     names = list(dict.fromkeys(["conventional", *policies, "oracle"]))  # references always run
     probe = CutOffVectorEnv(num_envs=1, **env_config)
@@ -154,14 +165,16 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
     results: dict[str, Any] = {"suites": {}}
     parallel = backend_name(workers, ray_address) != "serial"
     done: dict[tuple[str, str], tuple[str, list[dict[str, Any]], float]] = {}
-    suite_eps = {suite: suite_episodes(suite, episodes, seed, probe.config.get("rig"))
+    suite_eps = {suite: suite_episodes(suite, episodes, seed, probe.config.get("rig"),
+                                       points if suite == "points" else None)
                  for suite in suites}
     if parallel:  # a task per (suite, policy) pair, or per rig of a policy commissioned per rig
         keys = [(suite, spec, rigs) for suite in suites for spec in names
                 for rigs in _per_rig_tasks(spec, suite_eps[suite])]
         outs = run_tasks(policy_records, [
             {"spec": _absolute(spec), "suite": suite, "episodes": episodes, "seed": seed,
-             "env_config": env_config, "commission": dict(commission or {}), "rigs": rigs}
+             "env_config": env_config, "commission": dict(commission or {}), "rigs": rigs,
+             "points": points}
             for suite, spec, rigs in keys], workers, ray_address,
             progress, desc="evaluation")
         done = gather(keys, outs)
@@ -204,6 +217,7 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
             results["suites"][suite]["rigs"] = rigs
     results["config"] = {"policies": names, "suites": list(suites), "episodes": episodes,
                          "commission": dict(commission or {}),
+                         "points": [list(p) for p in points] if points is not None else None,
                          "seed": seed, "env_config": {k: repr(v) if not isinstance(
                              v, (int, float, str, bool, type(None))) else v
                              for k, v in env_config.items() if k != "rig"},

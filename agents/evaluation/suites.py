@@ -8,7 +8,8 @@
 - ``transfer``: rigs no policy was trained on (:func:`transfer_rigs`): the thesis rig, held-out
   draws of the rig family, rigs beyond its edges and model forms it does not draw, each at four
   operating points (:data:`TRANSFER_POINTS`), each episode with its own oracle;
-- ``points`` (only when named): those operating points on the environment's own rig;
+- ``points`` (only when named): those operating points on the environment's own rig, or the
+  points given (``points=``, ``pneugym evaluate --points BAR:KG ...``; :func:`check_points`);
 - ``cylinders`` (only when named): :data:`CYLINDER_HELD_OUT` held-out draws of the
   ``family-cylinders`` preset (single-rod and inclined cylinders among them) at those operating
   points (:func:`cylinder_rigs`).
@@ -145,9 +146,36 @@ def cylinder_rigs(base: RigParams | None = None) -> dict[str, tuple]:
     return {f"cyl-{k + 1}": changes for k, changes in enumerate(draws)}
 
 
-def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, ConditionSpace]]:
+def check_points(points: Any) -> tuple[tuple[float, float], ...]:
+    """Operating points ``((supply bar gauge, load kg), ...)`` of the ``points`` suite, checked:
+    at least one, none twice, each a supply and load a rig takes (:class:`RigParams`' own
+    checks). Raises ValueError naming the point."""
+    try:
+        pts = tuple((float(b), float(m)) for b, m in points)
+    except (TypeError, ValueError):
+        raise ValueError(f"points = {points!r}: expected (supply bar gauge, load kg) pairs, "
+                         f"e.g. ((4.0, 20.0), (6.0, 40.0))") from None
+    if not pts:
+        raise ValueError("points: give at least one operating point (supply bar g, load kg)")
+    for b, m in pts:
+        try:
+            RigParams().with_(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m)
+        except ValueError as exc:
+            raise ValueError(f"operating point {b:g} bar g / {m:g} kg: {exc}") from None
+    if len(set(pts)) < len(pts):
+        raise ValueError(f"points = {pts}: an operating point is given twice")
+    return pts
+
+
+def suite_cells(suite: str, rig: RigParams | None = None, points: Any = None
+                ) -> list[tuple[str, ConditionSpace]]:
     """The condition cells of a suite: ``(label, space to draw each episode's conditions from)``;
-    ``rig``'s own operating point is a cell of the nominal suite when it is none of the thesis's."""
+    ``rig``'s own operating point is a cell of the nominal suite when it is none of the thesis's;
+    ``points`` (supply bar g, load kg): the ``points`` suite's operating points instead of
+    :data:`TRANSFER_POINTS` (the other suites refuse them)."""
+    if points is not None and suite != "points":
+        raise ValueError(f"operating points are given for the {suite} suite: only the points "
+                         f"suite takes them")
     if suite == "nominal":
         cells = [(f"{b:g}bar-10kg", _fixed(b, 10.0)) for b in (1.5, 2.5)]
         if rig is not None:
@@ -168,7 +196,8 @@ def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, Con
             ]
         return cells
     if suite == "points":
-        return [(f"{b:g}bar-{m:g}kg", _fixed(b, m)) for b, m in TRANSFER_POINTS]
+        pts = TRANSFER_POINTS if points is None else check_points(points)
+        return [(f"{b:g}bar-{m:g}kg", _fixed(b, m)) for b, m in pts]
     if suite in ("transfer", "cylinders"):
         rigs = transfer_rigs(rig) if suite == "transfer" else cylinder_rigs(rig)
         return [(f"{name}/{b:g}bar-{m:g}kg", _fixed(b, m, rig_changes=changes))
@@ -176,11 +205,12 @@ def suite_cells(suite: str, rig: RigParams | None = None) -> list[tuple[str, Con
     raise ValueError(f"unknown suite {suite!r}; choose one of {SUITES} or all")
 
 
-def suite_episodes(suite: str, episodes: int, seed: int, rig: RigParams | None = None
-                   ) -> list[tuple[str, Conditions]]:
-    """``episodes`` draws per cell, each from its own seeded generator."""
+def suite_episodes(suite: str, episodes: int, seed: int, rig: RigParams | None = None,
+                   points: Any = None) -> list[tuple[str, Conditions]]:
+    """``episodes`` draws per cell, each from its own seeded generator (``points``: see
+    :func:`suite_cells`)."""
     out = []
-    for c, (label, space) in enumerate(suite_cells(suite, rig)):
+    for c, (label, space) in enumerate(suite_cells(suite, rig, points)):
         for k in range(episodes):
             rng = np.random.default_rng([seed, c, k])
             out.append((label, space.sample(rng)))
