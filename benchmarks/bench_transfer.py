@@ -11,7 +11,7 @@ and policy).
 
 The retrained ESAC learns over the range its rig runs at (``--train-range points``, the default:
 ``env.conditions`` = the family's supply and load ranges, which hold every operating point of
-the suite, :data:`POINTS_RANGE`), or on its config's preset alone (``--train-range preset``:
+the suite, :func:`points_range`), or on its config's preset alone (``--train-range preset``:
 ``randomized``, 1.5-5 bar g and 5-30 kg, the earlier figures).
 
     python benchmarks/bench_transfer.py                         # 4 rigs, quick budget, ~15 min
@@ -39,9 +39,11 @@ def points_range() -> dict[str, list[float]]:
     fam = PRESETS["family"]
     rng = {"supply_pressure_gauge_pa": list(fam.supply_pressure_gauge_pa),
            "load_mass_kg": list(fam.load_mass_kg)}
-    for bar, kg in TRANSFER_POINTS:
-        lo, hi = rng["supply_pressure_gauge_pa"]
-        assert lo <= bar * 1e5 <= hi and rng["load_mass_kg"][0] <= kg <= rng["load_mass_kg"][1]
+    (plo, phi), (mlo, mhi) = rng["supply_pressure_gauge_pa"], rng["load_mass_kg"]
+    outside = [(b, m) for b, m in TRANSFER_POINTS if not (plo <= b * 1e5 <= phi and mlo <= m <= mhi)]
+    if outside:  # a design error: the suite's points and the family's ranges drifted apart
+        raise ValueError(f"the family's supply and load ranges leave out the transfer points "
+                         f"{outside}")
     return rng
 
 
