@@ -33,6 +33,9 @@ class Policy:
     """Base class: subclasses implement :meth:`act` on a batch of observations (B, size)."""
 
     name = "policy"
+    #: the conditions a trained policy was trained on (a ``ConditionSpace``, set when it is
+    #: loaded, :func:`agents.registry.load_policy`); None: untrained, or not recorded
+    training_space: Any = None
 
     def __init__(self, layout: Mapping[str, Any]):
         self.read = ObservationReader(layout)

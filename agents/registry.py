@@ -128,6 +128,25 @@ def trained_preset(policy: Policy, run: dict | None) -> str | None:
         "preset")
 
 
+def training_space(policy: Policy, run: dict | None):
+    """The :class:`~pneugym.envs.ConditionSpace` ``policy`` was trained on: its preset (its
+    run's or ESAC metadata's) with the ``env.conditions`` overrides it recorded, on the rig it
+    was trained on; None when the model records no preset."""
+    from pneugym.envs.conditions import resolve
+
+    preset = trained_preset(policy, run)
+    if preset is None:
+        return None
+    conditions = getattr(policy, "trained_conditions", None)
+    if conditions is None:
+        conditions = (((run or {}).get("config") or {}).get("env") or {}).get("conditions")
+    try:
+        return resolve(preset, conditions or None, rig=trained_rig(policy, run))
+    except ValueError as exc:
+        raise ValueError(f"{getattr(policy, 'source', 'the model')}: the training conditions it "
+                         f"records are not valid: {exc}") from None
+
+
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``), a
     stable-baselines3 ``.zip`` (PPO, DQN or A2C), a Gas-Law K calibration (``.json``, from
@@ -176,6 +195,7 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
                              f"{sorted(esac.RULE_PARAMETERS)}")
         pol = esac.load_policy(f, layout, **kwargs)
         check_rig(pol, run, env)
+        pol.training_space = training_space(pol, run)
         return pol
     if not zipfile.is_zipfile(f):
         raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
@@ -196,6 +216,7 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     decision = _decision(f, model.__dict__.get("pneugym_decision"), kwargs.get("decision"))
     pol = SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
     check_rig(pol, run, env)
+    pol.training_space = training_space(pol, run)
     return pol
 
 

@@ -173,3 +173,13 @@ def test_conditions_reach_the_env_plant():
     env, info = _conventional_episode(Conditions(load_mass_kg=25.0, supply_pressure_gauge_pa=2e5))
     assert env.P[0, L.P_MASS] > nominal.P[0, L.P_MASS]
     assert info["energy_conventional_j"] < info0["energy_conventional_j"]
+
+
+def test_an_operating_point_outside_a_space_is_named():
+    space = PRESETS["randomized"]
+    assert space.outside(250_000.0, 10.0) == []
+    assert space.outside(500_000.0, 30.0) == []           # the edges are inside
+    assert space.outside(600_000.0, 40.0) == ["supply 6 bar g outside 1.5-5",
+                                              "load 40 kg outside 5-30"]
+    assert space.outside(100_000.0, 10.0) == ["supply 1 bar g outside 1.5-5"]
+    assert resolve("family", {"load_mass_kg": [2.0, 50.0]}).outside(250_000.0, 45.0) == []

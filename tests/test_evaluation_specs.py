@@ -168,3 +168,33 @@ def test_unusable_models_stop_evaluate_before_any_episode_or_training(models, tm
         assert msg in err and "Traceback" not in err, err
     assert not (tmp_path / "out" / "results.json").exists()
     assert not (tmp_path / "runs").exists()  # nothing trained on demand
+
+
+def test_points_outside_a_models_training_conditions_are_counted_and_warned_of(models, tmp_path):
+    import warnings
+
+    from agents import esac
+    from agents.training import TrainingRangeWarning
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    lay = CutOffVectorEnv(num_envs=1, history=2).observation_layout()
+    net = esac.make_net(lay["size"], (8,))
+    meta = {"n_in": lay["size"], "hidden": [8], "layout": lay, "rule": {"margin": 0.05}}
+    esac.save(tmp_path / "preset.pt", net, {**meta, "data": {"preset": "randomized"}})
+    esac.save(tmp_path / "wide.pt", net, {**meta, "data": {"preset": "randomized", "conditions": {
+        "supply_pressure_gauge_pa": [150_000, 600_000], "load_mass_kg": [2, 40]}}})
+    args = ["--suite", "points", "--points", "4:20", "6:40", "--episodes", "1", "--no-progress",
+            "--policies", f"preset={tmp_path / 'preset.pt'}", f"wide={tmp_path / 'wide.pt'}",
+            f"bare={models['esac']}"]
+    with pytest.warns(TrainingRangeWarning, match=r"preset: 1 of the points suite's 2 episodes "
+                      r"lie outside .*\(supply 6 bar g outside 1.5-5; load 40 kg outside 5-30\)"):
+        res = cli.main([*args, "--out", str(tmp_path / "out")])
+    pols = res["suites"]["points"]["policies"]
+    assert pols["preset"]["outside_training_rate"] == 0.5
+    assert pols["preset"]["per_condition"]["4bar-20kg"]["outside_training_rate"] == 0.0
+    assert pols["wide"]["outside_training_rate"] == 0.0   # trained over the range: inside
+    assert pols["bare"]["outside_training_rate"] is None  # records no training conditions
+    assert pols["conventional"]["outside_training_rate"] is None  # a baseline
+    with warnings.catch_warnings():  # inside every model's range: nothing to say
+        warnings.simplefilter("error", TrainingRangeWarning)
+        cli.main([*args[:3], "4:20", *args[5:], "--out", str(tmp_path / "in")])

@@ -144,6 +144,7 @@ def load_policy(path: str | Path, env_layout: Mapping[str, Any], **rule: Any) ->
     pol = ESACPolicy(env_layout, pred, source=f"ESAC model {path}", **params)
     pol.trained_rig = meta.get("rig")  # a RigParams dict; None: the thesis rig
     pol.trained_preset = (meta.get("data") or {}).get("preset")
+    pol.trained_conditions = (meta.get("data") or {}).get("conditions")  # env.conditions
     return pol
 
 

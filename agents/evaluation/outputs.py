@@ -5,11 +5,17 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 from pneugym.outputs import atomic_write_json, staged_files
 
 from .plots import plot_results
+
+
+def outside_reasons(rec: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The distinct reasons why episodes of ``rec`` lie outside their policy's training
+    conditions (their ``outside_training``), in episode order."""
+    return list(dict.fromkeys(r["outside_training"] for r in rec if r.get("outside_training")))
 
 
 def print_table(results: dict[str, Any]) -> None:
@@ -27,6 +33,13 @@ def print_table(results: dict[str, Any]) -> None:
                   f"{pct(p['stall_rate']):>8}{pct(p['stick_slip_rate']):>8}"
                   f"{pct(p['completion_rate']):>8}{p['return_mean']:>9.3f}"
                   f"{(f'{of:.3f}' if of is not None else '-'):>11}")
+        for name, p in s["policies"].items():
+            if p.get("outside_training_rate"):
+                rec = [r for r in s["episodes"] if r["policy"] == name]
+                why = outside_reasons(rec)
+                print(f"  {name}: {100 * p['outside_training_rate']:.0f} % of the episodes lie "
+                      f"outside its training conditions ({'; '.join(why[:2])}"
+                      f"{'; ...' if len(why) > 2 else ''})")
     print("(oracle: privileged, knows each episode's conditions; oracle fraction = share of the "
           "oracle's gain over conventional)")
 

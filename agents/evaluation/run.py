@@ -21,6 +21,7 @@ from pneugym.envs.cutoff import CutOffVectorEnv
 from pneugym.parallel import backend_name, run_tasks
 from pneugym.provenance import provenance
 
+from .outputs import outside_reasons
 from .specs import check_policy_specs, evaluation_env_config, make_named_policy, parse_spec
 from .suites import NOISE, suite_episodes
 
@@ -55,7 +56,34 @@ def summarize(rec: list[dict[str, Any]], conv: float, oracle: float) -> dict[str
         "completion_rate": _mean([r["completed"] for r in rec]),
         "return_mean": ret,
         "oracle_fraction": oracle_fraction(ret, conv, oracle),
+        "outside_training_rate": _mean([bool(r["outside_training"]) for r in rec
+                                        if r.get("outside_training") is not None]),
     }
+
+
+def outside_training(policy: Policy, c: Conditions) -> str | None:
+    """What of episode conditions ``c``'s operating point lies outside the conditions
+    ``policy`` was trained on (``""``: nothing; None: the policy records none, a baseline)."""
+    space = getattr(policy, "training_space", None)
+    if space is None:
+        return None
+    return "; ".join(space.outside(c.supply_pressure_gauge_pa, c.load_mass_kg))
+
+
+def _warn_outside(name: str, rec: Sequence[Mapping[str, Any]]) -> None:
+    """A :class:`~agents.training.TrainingRangeWarning`: operating points of the points suite
+    lie outside what policy ``name`` was trained on."""
+    import warnings
+
+    from agents.training.validation import TrainingRangeWarning
+
+    n = sum(bool(r.get("outside_training")) for r in rec)
+    warnings.warn(f"{name}: {n} of the points suite's {len(rec)} episodes lie outside the "
+                  f"conditions it was trained on ({'; '.join(outside_reasons(rec))}); there "
+                  f"its decisions extrapolate (retrain it over them: pneugym train ... --set "
+                  f"'env.conditions.supply_pressure_gauge_pa=[LOW, HIGH]' --set "
+                  f"'env.conditions.load_mass_kg=[LOW, HIGH]')", TrainingRangeWarning,
+                  stacklevel=3)
 
 
 def _absolute(spec: str) -> str:
@@ -101,7 +129,8 @@ def policy_records(spec: str, suite: str, episodes: int, seed: int, env_config: 
         out = run_policy(policy, [c for _, c in eps], env_config, seed)
     wall = time.perf_counter() - t0
     return name, [{"suite": suite, "policy": name, "condition": eps[i][0], "episode": i,
-                   **{k: _py(v[k_]) for k, v in out.items()}, **_conditions(*eps[i])}
+                   **{k: _py(v[k_]) for k, v in out.items()}, **_conditions(*eps[i]),
+                   "outside_training": outside_training(policy, eps[i][1])}
                   for k_, i in enumerate(sel)], wall
 
 
@@ -210,6 +239,8 @@ def evaluate(policies: Sequence[str], suites: Sequence[str], episodes: int, seed
                         of(rec), _mean([r["objective"] for r in of(records["conventional"])]),
                         _mean([r["objective"] for r in of(records["oracle"])]))
             pols[name] = s
+            if suite == "points" and s["outside_training_rate"]:
+                _warn_outside(name, rec)
         results["suites"][suite] = {"policies": pols, "conditions": labels,
                                     "episodes": [r for rec in records.values() for r in rec]}
         rigs = {lab.split("/")[0]: dict(c.rig_changes) for lab, c in eps if "/" in lab}

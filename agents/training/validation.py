@@ -45,12 +45,7 @@ def operating_point_outside(preset: str, rig: Any = None,
 
     rig = as_rig(rig)
     space = resolve(preset, conditions, rig=rig)
-    out = []
-    for name, value, (lo, hi), unit, scale in (
-            ("supply", rig.supply_pressure_gauge_pa, space.supply_pressure_gauge_pa, "bar g", 1e-5),
-            ("load", rig.load_mass_kg, space.load_mass_kg, "kg", 1.0)):
-        if not lo - 1e-9 * abs(lo) <= value <= hi + 1e-9 * abs(hi):
-            out.append(f"{name} {value * scale:g} {unit} outside {lo * scale:g}-{hi * scale:g}")
+    out = space.outside(rig.supply_pressure_gauge_pa, rig.load_mass_kg)
     return "; ".join(out) or None
 
 

@@ -209,6 +209,20 @@ class ConditionSpace:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def outside(self, supply_pressure_gauge_pa: float, load_mass_kg: float) -> list[str]:
+        """What of an operating point (supply set-point [Pa gauge], load [kg]) lies outside the
+        ranges this space draws, e.g. ``["supply 6 bar g outside 1.5-5"]`` (empty if nothing
+        does). The operating point is what a rig file states and a user sets; the other fields
+        scale what a rig file states (a family varies the rig itself)."""
+        out = []
+        for name, field, value, unit, scale in (
+                ("supply", "supply_pressure_gauge_pa", supply_pressure_gauge_pa, "bar g", 1e-5),
+                ("load", "load_mass_kg", load_mass_kg, "kg", 1.0)):
+            lo, hi = getattr(self, field)
+            if not lo - 1e-9 * abs(lo) <= value <= hi + 1e-9 * abs(hi):
+                out.append(f"{name} {value * scale:g} {unit} outside {lo * scale:g}-{hi * scale:g}")
+        return out
+
 
 def as_conditions(c: Any, what: str = "conditions") -> Conditions:
     """``c`` as :class:`Conditions`: an instance, or a mapping of its fields (unknown names are
