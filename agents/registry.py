@@ -147,6 +147,28 @@ def training_space(policy: Policy, run: dict | None):
                          f"records are not valid: {exc}") from None
 
 
+def check_operating_point(policy: Policy, env) -> None:
+    """Warn (:class:`~agents.training.TrainingRangeWarning`) when the operating point of
+    ``env``'s rig (the supply and load its rig file states) lies outside the conditions
+    ``policy`` was trained on (its ``training_space``), naming what lies outside."""
+    import warnings
+
+    from agents.training.validation import TrainingRangeWarning
+
+    space = getattr(policy, "training_space", None)
+    if space is None:
+        return
+    rig = env.unwrapped.rig
+    what = space.outside(rig.supply_pressure_gauge_pa, rig.load_mass_kg)
+    if what:
+        warnings.warn(f"{getattr(policy, 'source', 'the model')}: this rig's operating point "
+                      f"lies outside the conditions it was trained on ({'; '.join(what)}); "
+                      f"there its decisions extrapolate (retrain it over them: pneugym train "
+                      f"... --set 'env.conditions.supply_pressure_gauge_pa=[LOW, HIGH]' --set "
+                      f"'env.conditions.load_mass_kg=[LOW, HIGH]')", TrainingRangeWarning,
+                      stacklevel=3)
+
+
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     """A trained policy for ``env``: a run directory of train.py, an ESAC model (``.pt``), a
     stable-baselines3 ``.zip`` (PPO, DQN or A2C), a Gas-Law K calibration (``.json``, from
@@ -196,6 +218,7 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
         pol = esac.load_policy(f, layout, **kwargs)
         check_rig(pol, run, env)
         pol.training_space = training_space(pol, run)
+        check_operating_point(pol, env)
         return pol
     if not zipfile.is_zipfile(f):
         raise ValueError(f"{path} is not a stable-baselines3 model (.zip), nor an ESAC model "
@@ -216,7 +239,11 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     decision = _decision(f, model.__dict__.get("pneugym_decision"), kwargs.get("decision"))
     pol = SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
     check_rig(pol, run, env)
+    pol.trained_preset = trained_preset(pol, run)
+    pol.trained_conditions = (((run or {}).get("config") or {}).get("env") or {}).get(
+        "conditions")
     pol.training_space = training_space(pol, run)
+    check_operating_point(pol, env)
     return pol
 
 

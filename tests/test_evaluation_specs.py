@@ -198,3 +198,23 @@ def test_points_outside_a_models_training_conditions_are_counted_and_warned_of(m
     with warnings.catch_warnings():  # inside every model's range: nothing to say
         warnings.simplefilter("error", TrainingRangeWarning)
         cli.main([*args[:3], "4:20", *args[5:], "--out", str(tmp_path / "in")])
+
+
+def test_a_model_loaded_for_a_rig_run_outside_its_training_conditions_warns(tmp_path):
+    from agents import esac
+    from agents.registry import load_policy
+    from agents.training import TrainingRangeWarning
+    from pneugym.envs.cutoff import CutOffVectorEnv
+    from pneugym.params import RigParams
+
+    lay = CutOffVectorEnv(num_envs=1, history=2).observation_layout()
+    esac.save(tmp_path / "m.pt", esac.make_net(lay["size"], (8,)),
+              {"n_in": lay["size"], "hidden": [8], "layout": lay, "rule": {"margin": 0.05},
+               "data": {"preset": "randomized"}})
+    rig = RigParams().with_(supply_pressure_gauge_pa=250_000.0, load_mass_kg=40.0)
+    env = CutOffVectorEnv(num_envs=1, history=2, rig=rig)
+    with pytest.warns(TrainingRangeWarning, match=r"this rig's operating point lies outside the "
+                                                  r"conditions it was trained on \(load 40 kg "
+                                                  r"outside 5-30\)"):
+        pol = load_policy(tmp_path / "m.pt", env)
+    assert pol.training_space.load_mass_kg == (5.0, 30.0)

@@ -426,3 +426,33 @@ def test_saved_models_run_exported_without_torch(tmp_path):
     res = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path)], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]
+
+
+def test_an_exported_controller_keeps_its_training_conditions(tmp_path):
+    import warnings
+
+    from agents.registry import check_operating_point
+    from agents.training import TrainingRangeWarning
+    from pneugym.params import RigParams
+
+    pol = esac_policy()
+    pol.trained_preset, pol.trained_conditions = "randomized", {"load_mass_kg": [2.0, 40.0]}
+    d = ex.export(pol, tmp_path / "c")["controller"].parent
+    back = ex.load_exported(d, _env_layout())
+    assert (back.training_space.supply_pressure_gauge_pa, back.training_space.load_mass_kg) == (
+        (150_000.0, 500_000.0), (2.0, 40.0))
+    env = CutOffVectorEnv(num_envs=1, history=HISTORY, observe_rig=True,
+                          rig=RigParams().with_(supply_pressure_gauge_pa=600_000.0,
+                                                load_mass_kg=35.0))
+    with pytest.warns(TrainingRangeWarning, match=r"operating point lies outside .*\(supply 6 "
+                                                  r"bar g outside 1.5-5\)"):
+        check_operating_point(back, env)
+    with warnings.catch_warnings():  # the thesis rig's 2.5 bar g and 10 kg: inside
+        warnings.simplefilter("error", TrainingRangeWarning)
+        check_operating_point(back, CutOffVectorEnv(num_envs=1, history=HISTORY,
+                                                    observe_rig=True))
+    meta = json.loads((d / "controller.json").read_text())
+    meta["trained_conditions"] = [1, 2]
+    (d / "controller.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="trained_conditions is \\[1, 2\\]; expected"):
+        ex.load_exported(d, _env_layout())

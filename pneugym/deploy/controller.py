@@ -311,11 +311,12 @@ def _policy(name: str, path: Path, env: Any, backend: str, kwargs: dict[str, Any
         if kwargs:
             raise ValueError(f"{path} is an exported controller: its decision rule is fixed at "
                              f"export; got overrides {sorted(kwargs)}")
-        from agents.registry import check_rig
+        from agents.registry import check_operating_point, check_rig
 
         policy = load_exported(path, env.unwrapped.observation_layout(),
                                backend="numpy" if backend == "torch" else backend)
         check_rig(policy, None, env)
+        check_operating_point(policy, env)
         return policy
     if not path.exists():
         from agents.evaluation.specs import LEARNED

@@ -540,6 +540,7 @@ def export(policy: Policy, out_dir: str | os.PathLike) -> dict[str, Path]:
         "tolerance": {"atol": ATOL, "rtol": RTOL}, "check": check,
         "trained_rig": _trained_rig(policy),
         "trained_preset": getattr(policy, "trained_preset", None),
+        "trained_conditions": getattr(policy, "trained_conditions", None),
     }
     if kind == "esac":
         pred = policy.predictor
@@ -681,6 +682,13 @@ def load_exported(out_dir: str | os.PathLike, env_layout: Mapping[str, Any],
 
         pol.trained_rig = as_rig(meta["trained_rig"], f"{f}: trained_rig")
     pol.trained_preset = meta.get("trained_preset")
+    pol.trained_conditions = meta.get("trained_conditions")
+    if pol.trained_conditions is not None and not isinstance(pol.trained_conditions, dict):
+        raise ValueError(f"{f}: trained_conditions is {pol.trained_conditions!r:.80}; expected "
+                         f"the training's condition overrides (a mapping) or null")
+    from agents.registry import training_space
+
+    pol.training_space = training_space(pol, None)
     pol.exported_from = d
     pol.backend_name = backend
     pol.export_meta = meta
