@@ -128,6 +128,11 @@ def trained_preset(policy: Policy, run: dict | None) -> str | None:
         "preset")
 
 
+def _run_conditions(run: dict | None) -> Any:
+    """The ``env.conditions`` overrides a run's ``run.json`` records (None: none)."""
+    return (((run or {}).get("config") or {}).get("env") or {}).get("conditions")
+
+
 def training_space(policy: Policy, run: dict | None):
     """The :class:`~pneugym.envs.ConditionSpace` ``policy`` was trained on: its preset (its
     run's or ESAC metadata's) with the ``env.conditions`` overrides it recorded, on the rig it
@@ -139,7 +144,7 @@ def training_space(policy: Policy, run: dict | None):
         return None
     conditions = getattr(policy, "trained_conditions", None)
     if conditions is None:
-        conditions = (((run or {}).get("config") or {}).get("env") or {}).get("conditions")
+        conditions = _run_conditions(run)
     try:
         return resolve(preset, conditions or None, rig=trained_rig(policy, run))
     except ValueError as exc:
@@ -153,7 +158,7 @@ def check_operating_point(policy: Policy, env) -> None:
     ``policy`` was trained on (its ``training_space``), naming what lies outside."""
     import warnings
 
-    from agents.training.validation import TrainingRangeWarning
+    from agents.training.validation import RETRAIN_OVER_RANGE, TrainingRangeWarning
 
     space = getattr(policy, "training_space", None)
     if space is None:
@@ -164,9 +169,7 @@ def check_operating_point(policy: Policy, env) -> None:
         warnings.warn(f"{getattr(policy, 'source', 'the model')}: this rig's operating point "
                       f"lies outside the conditions it was trained on ({'; '.join(what)}); "
                       f"there its decisions extrapolate (retrain it over them: pneugym train "
-                      f"... --set 'env.conditions.supply_pressure_gauge_pa=[LOW, HIGH]' --set "
-                      f"'env.conditions.load_mass_kg=[LOW, HIGH]')", TrainingRangeWarning,
-                      stacklevel=3)
+                      f"... {RETRAIN_OVER_RANGE})", TrainingRangeWarning, stacklevel=3)
 
 
 def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
@@ -240,8 +243,7 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
     pol = SB3Policy(layout, model, model_layout, source=f"model {f}", decision=decision)
     check_rig(pol, run, env)
     pol.trained_preset = trained_preset(pol, run)
-    pol.trained_conditions = (((run or {}).get("config") or {}).get("env") or {}).get(
-        "conditions")
+    pol.trained_conditions = _run_conditions(run)
     pol.training_space = training_space(pol, run)
     check_operating_point(pol, env)
     return pol

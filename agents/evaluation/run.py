@@ -75,15 +75,13 @@ def _warn_outside(name: str, rec: Sequence[Mapping[str, Any]]) -> None:
     lie outside what policy ``name`` was trained on."""
     import warnings
 
-    from agents.training.validation import TrainingRangeWarning
+    from agents.training.validation import RETRAIN_OVER_RANGE, TrainingRangeWarning
 
     n = sum(bool(r.get("outside_training")) for r in rec)
     warnings.warn(f"{name}: {n} of the points suite's {len(rec)} episodes lie outside the "
                   f"conditions it was trained on ({'; '.join(outside_reasons(rec))}); there "
-                  f"its decisions extrapolate (retrain it over them: pneugym train ... --set "
-                  f"'env.conditions.supply_pressure_gauge_pa=[LOW, HIGH]' --set "
-                  f"'env.conditions.load_mass_kg=[LOW, HIGH]')", TrainingRangeWarning,
-                  stacklevel=3)
+                  f"its decisions extrapolate (retrain it over them: pneugym train ... "
+                  f"{RETRAIN_OVER_RANGE})", TrainingRangeWarning, stacklevel=3)
 
 
 def _absolute(spec: str) -> str:

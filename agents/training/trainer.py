@@ -48,7 +48,7 @@ def _warn_outside(cfg: dict[str, Any]) -> None:
     point lies outside the conditions the run trains on."""
     import warnings
 
-    from .validation import TrainingRangeWarning, operating_point_outside
+    from .validation import RETRAIN_OVER_RANGE, TrainingRangeWarning, operating_point_outside
 
     if cfg.get("rig") is None:
         return
@@ -57,9 +57,8 @@ def _warn_outside(cfg: dict[str, Any]) -> None:
     if what:
         warnings.warn(f"the rig's own operating point lies outside the conditions this run "
                       f"trains on (preset {cfg['preset']}): {what}; train over the range the "
-                      f"rig runs at, e.g. --set 'env.conditions.supply_pressure_gauge_pa="
-                      f"[LOW, HIGH]' --set 'env.conditions.load_mass_kg=[LOW, HIGH]' (SI units)",
-                      TrainingRangeWarning, stacklevel=3)
+                      f"rig runs at, e.g. {RETRAIN_OVER_RANGE}", TrainingRangeWarning,
+                      stacklevel=3)
 
 
 def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int | None = None,

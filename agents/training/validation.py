@@ -35,6 +35,11 @@ class TrainingRangeWarning(UserWarning):
     trains on."""
 
 
+#: what a :class:`TrainingRangeWarning` tells to do: train over the range the rig runs at
+RETRAIN_OVER_RANGE = ("--set 'env.conditions.supply_pressure_gauge_pa=[LOW, HIGH]' --set "
+                      "'env.conditions.load_mass_kg=[LOW, HIGH]' (SI units)")
+
+
 def operating_point_outside(preset: str, rig: Any = None,
                             conditions: Mapping[str, Any] | None = None) -> str | None:
     """What of ``rig``'s own operating point (supply set-point, load) lies outside the ranges
