@@ -6,7 +6,9 @@ set-point and the payload, and each finished stroke's measured outcome (complete
 stick-slip events the position trace shows, the stroke time an end switch gives, the wasted
 energy from the driving chamber's final pressure; :data:`MEASURED`).
 The conventional stroke time and energy that the objective is counted against are measured on
-*reference strokes*: every ``reference_every``-th stroke runs uncut (its air is spent, and counted).
+*reference strokes*, run uncut (their air is spent, and counted): every 100th stroke, or, for
+adaptive ESAC with ``reference_on_change``, at each change of the told operating point and
+``reference_every`` strokes after the last one (:class:`ReferenceSchedule`).
 
 - :class:`Frozen`: any policy (a baseline's name or ``NAME=PATH`` of a trained one), unchanged.
 - :class:`AdaptiveGasLaw`: the Gas-Law rule with its K table scaled by a factor adjusted after
@@ -69,6 +71,60 @@ def latest_reference(rec: Mapping[str, np.ndarray], conv: tuple[float, float]
     return float(rec["stroke_time_s"][ref[-1]]), float(rec["energy_wasted_j"][ref[-1]])
 
 
+#: with ``reference_on_change``, a reference stroke is due at a told supply set-point this far
+#: [Pa] from the last reference stroke's, or a payload this far (relative) from its payload
+REFERENCE_SUPPLY_TOL_PA = 1e4
+REFERENCE_LOAD_TOL = 0.05
+
+
+class ReferenceSchedule:
+    """Which strokes run uncut as *reference strokes* (the conventional figures the measured
+    objective is counted against): every ``every``-th stroke (0: none). With ``on_change``,
+    also the first stroke told an operating point away from the last reference stroke's
+    (supply set-point by more than :data:`REFERENCE_SUPPLY_TOL_PA`, payload by more than
+    :data:`REFERENCE_LOAD_TOL`), and ``every`` then counts from the last reference stroke: the
+    conventional figures change with the operating point, and while it holds they drift only
+    slowly (wear, leaks), so the references can be sparse."""
+
+    def __init__(self, every: int, on_change: bool = False):
+        if not (isinstance(every, int) and every >= 0) or (on_change and every < 1):
+            raise ValueError(f"reference_every = {every!r} must be an integer >= 0 (strokes "
+                             f"between reference strokes; 0: none), >= 1 with reference_on_change")
+        self.every, self.on_change = every, bool(on_change)
+        self.last: int | None = None  # the last reference stroke (with on_change)
+        self.point: tuple[float, float] | None = None  # its told (supply [Pa g], load [kg])
+
+    def flags(self, strokes: np.ndarray, told: Any = None) -> np.ndarray:
+        """The reference flag of each of ``strokes`` (in order); ``told``: each stroke's told
+        conditions (needed with ``on_change``)."""
+        strokes = np.asarray(strokes)
+        if not self.every:
+            return np.zeros(strokes.size, dtype=bool)
+        if not self.on_change:
+            return strokes % self.every == 0
+        if told is None or len(told) != strokes.size:
+            raise ValueError("reference strokes on a change of the operating point need each "
+                             "stroke's told conditions (plan(strokes, told))")
+        out = np.zeros(strokes.size, dtype=bool)
+        for i, (k, c) in enumerate(zip(strokes, told)):
+            pt = (float(c.supply_pressure_gauge_pa), float(c.load_mass_kg))
+            if (self.last is None or k - self.last >= self.every or self._moved(pt)):
+                out[i], self.last, self.point = True, int(k), pt
+        return out
+
+    def _moved(self, pt: tuple[float, float]) -> bool:
+        s0, m0 = self.point
+        return (abs(pt[0] - s0) > REFERENCE_SUPPLY_TOL_PA
+                or abs(pt[1] - m0) > REFERENCE_LOAD_TOL * max(abs(m0), 1e-9))
+
+    def state(self) -> dict[str, Any]:
+        return {"last": self.last, "point": None if self.point is None else list(self.point)}
+
+    def restore(self, s: Mapping[str, Any]) -> None:
+        self.last = None if s.get("last") is None else int(s["last"])
+        self.point = None if s.get("point") is None else tuple(float(v) for v in s["point"])
+
+
 class Frozen:
     """A policy that never changes: ``spec`` a baseline's name (``gaslaw``, ``endstroke``, ...)
     or ``NAME=PATH`` of a trained model, built for ``env`` (the operating vector environment)."""
@@ -85,22 +141,19 @@ class Frozen:
         self.privileged = bool(getattr(self.policy, "privileged", False))
         self.seed = int(seed)
         self.version = f"{self.name}"
+        self.references = ReferenceSchedule(self.reference_every)
 
     def config(self) -> dict[str, Any]:
         """What identifies the controller (recorded with the run)."""
         return {"kind": type(self).__name__, "spec": self.spec}
 
-    def plan(self, strokes: np.ndarray) -> tuple[Policy, dict[str, np.ndarray]]:
+    def plan(self, strokes: np.ndarray, told: Any = None
+             ) -> tuple[Policy, dict[str, np.ndarray]]:
         """The policy for a block of strokes and each stroke's flags: ``reference`` (run uncut)
-        and ``explore``."""
+        and ``explore``; ``told``: each stroke's told conditions (supply set-point, payload)."""
         n = strokes.size
-        return self.policy, {"reference": self.is_reference(strokes),
+        return self.policy, {"reference": self.references.flags(strokes, told),
                              "explore": np.zeros(n, dtype=bool)}
-
-    def is_reference(self, strokes: np.ndarray) -> np.ndarray:
-        if not self.reference_every:
-            return np.zeros(strokes.size, dtype=bool)
-        return strokes % self.reference_every == 0
 
     def update(self, rec: Mapping[str, np.ndarray]) -> None:
         """Learn from a block's measured outcome (:data:`MEASURED`)."""
@@ -146,8 +199,9 @@ class AdaptiveGasLaw(Frozen):
         return {**super().config(), "delta": self.delta, "step": self.step,
                 "backoff": self.backoff, "reference_every": self.reference_every}
 
-    def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
-        ref = self.is_reference(strokes)
+    def plan(self, strokes: np.ndarray, told: Any = None
+             ) -> tuple[Any, dict[str, np.ndarray]]:
+        ref = self.references.flags(strokes, told)
         sign = np.where(strokes % 2 == 0, 1.0, -1.0)
         factor = np.exp(self.log_g + self.delta * sign)
         factor[ref] = 1e9  # never cut
@@ -274,7 +328,11 @@ class AdaptiveESAC(Frozen):
     ``withdrawn``; ``probation=0``: never). With ``explore_max`` above the range's top, the
     range grows by its first width whenever the tuned demand reaches its top step, up to
     ``explore_max`` (for a rig whose best cut makes the stroke far longer than the conventional
-    one; default ``None``: the range never grows)."""
+    one; default ``None``: the range never grows). Every ``reference_every``-th stroke is a
+    reference stroke; with ``reference_on_change`` one runs at the first stroke, at the first
+    stroke told another operating point and ``reference_every`` strokes after the last one
+    (:class:`ReferenceSchedule`; e.g. ``reference_every=500``: fewer uncut strokes, which paid
+    on the thesis-rig ESAC and cost the family ESAC, docs/operation.md)."""
 
     needs_inputs = True
     reference_every = 100
@@ -285,8 +343,11 @@ class AdaptiveESAC(Frozen):
                  explore_range: tuple[float, float] = (0.0, 0.3), tune_demand: bool = True,
                  tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50,
                  probation: int = 50, probation_stalls: int = 3,
-                 explore_max: float | None = None):
+                 explore_max: float | None = None, reference_every: int = 100,
+                 reference_on_change: bool = False):
+        self.reference_every = reference_every
         super().__init__(spec, env, seed)
+        self.references = ReferenceSchedule(reference_every, reference_on_change)
         from .esac.policy import ESACPolicy
 
         if not isinstance(self.policy, ESACPolicy):
@@ -348,12 +409,14 @@ class AdaptiveESAC(Frozen):
                 "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
                 "tune_z": self.tuner.z, "rollback_after": self.rollback_after,
                 "probation": self.probation, "probation_stalls": self.probation_stalls,
-                "explore_max": self.explore_max}
+                "explore_max": self.explore_max,
+                "reference_on_change": self.references.on_change}
 
-    def plan(self, strokes: np.ndarray) -> tuple[Any, dict[str, np.ndarray]]:
+    def plan(self, strokes: np.ndarray, told: Any = None
+             ) -> tuple[Any, dict[str, np.ndarray]]:
         from .esac.policy import ESACPolicy
 
-        ref = self.is_reference(strokes)
+        ref = self.references.flags(strokes, told)
         u = np.array([np.random.default_rng([self.seed, int(k), 7]).random(2) for k in strokes])
         explore = (u[:, 0] < self.explore) & ~ref
         lo, hi = self.explore_range
@@ -526,6 +589,7 @@ class AdaptiveESAC(Frozen):
                            "tuner": self.tuner.state(), "deployed_at": self.deployed_at,
                            "shipped_runs": self.shipped_runs,
                            "explore_top": self.explore_range[1],
+                           "references": self.references.state(),
                            "previous": None if self.previous is None else
                            [self.previous[0], self.previous[2]]}).encode()
 
@@ -539,6 +603,8 @@ class AdaptiveESAC(Frozen):
         self.tuner.restore(s["tuner"])
         if "explore_top" in s:
             self._set_top(float(s["explore_top"]))
+        if "references" in s:
+            self.references.restore(s["references"])
         self.version = self._version()
         if not self.shipped_runs:  # (a rollback runs the shipped model, loaded already)
             self.policy.predictor.net = self._recorded(record, run_id, self.model_version)

@@ -49,6 +49,14 @@ def main() -> None:
                    help="esac-adaptive: regular strokes a fine-tuned model is on probation for "
                         "(3 stalls there: the model before it runs again; default the "
                         "controller's, 50; 0: none)")
+    p.add_argument("--reference-every", type=int, default=None,
+                   help="esac-adaptive: strokes between reference strokes (default 100)")
+    p.add_argument("--reference-on-change", action=argparse.BooleanOptionalAction,
+                   default=None,
+                   help="esac-adaptive: a reference stroke also at each change of the told "
+                        "operating point, reference-every then counting from the last one "
+                        "(default: off, every reference-every-th stroke; tried: "
+                        "--reference-every 500 --reference-on-change)")
     p.add_argument("--explore-max", type=float, default=None,
                    help="esac-adaptive: the largest time demand its explored range grows to, "
                         "e.g. 1.2 (default: the range, +0 to +30 %%, never grows)")
@@ -81,7 +89,10 @@ def main() -> None:
         for c in ctrls:
             opts = {k: v for k, v in (("rollback_after", args.rollback_after),
                                       ("probation", args.probation),
-                                      ("explore_max", args.explore_max)) if v is not None}
+                                      ("explore_max", args.explore_max),
+                                      ("reference_every", args.reference_every),
+                                      ("reference_on_change", args.reference_on_change))
+                    if v is not None}
             opts = opts if opts and c.startswith("esac-adaptive=") else None
             ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
                                  options=opts, rig=args.rig, rig_name=args.rig_name)

@@ -13,6 +13,7 @@ pytest.importorskip("duckdb")
 
 from agents.adaptive import (AdaptiveGasLaw, DemandTuner, make_controller,  # noqa: E402
                              measured_objective)
+from pneugym.envs import Conditions  # noqa: E402
 from pneugym.envs.cutoff import CutOffVectorEnv  # noqa: E402
 from pneugym.operation import SCENARIOS, Scenario, scenario  # noqa: E402
 from pneugym.operation.record import Record, export_runs  # noqa: E402
@@ -343,7 +344,7 @@ def test_adaptive_esac_fine_tunes_from_its_record_and_resumes(tmp_path):
 
     def small(self, spec, env, seed=0, **kw):
         orig(self, spec, env, seed, adapt_every=40, window=80, epochs=3, explore=0.3,
-             explore_range=(0.6, 1.4))
+             explore_range=(0.6, 1.4), reference_every=100)
 
     A.AdaptiveESAC.__init__ = small
     try:
@@ -374,9 +375,10 @@ def test_adaptive_esac_fine_tunes_from_its_record_and_resumes(tmp_path):
         # stick, the others do not; the reference strokes give the conventional figures
         c = make_controller(f"esac-adaptive={model}", CutOffVectorEnv(num_envs=1, **ENV_CONFIG))
         assert c.demand == 1.0 and c.version.endswith("demand=1.000")
+        told = [Conditions(supply_pressure_gauge_pa=250_000.0, load_mass_kg=10.0)] * 25
         for k0 in range(0, 250, 25):
             ks = np.arange(k0, k0 + 25)
-            _, flags = c.plan(ks)
+            _, flags = c.plan(ks, told)
             ref = flags["reference"]
             c.update({"stroke": ks, "reference": ref, "completed": np.ones(25, bool),
                       "stick_slip_events": ((c._planned < 1.15) & ~ref).astype(np.int64),
@@ -570,7 +572,6 @@ def test_alarm_reads_an_ambiguous_answer_as_a_change():
 
 def test_a_block_tells_policies_only_what_is_known_and_records_the_latched_cut():
     from agents.oracle import TimedCutPolicy
-    from pneugym.envs import Conditions
     from pneugym.operation.run import run_block
 
     class Blip(TimedCutPolicy):  # cuts for one period only; the environment latches it
@@ -810,6 +811,51 @@ def test_a_fine_tuned_model_that_stalls_on_probation_is_withdrawn(tiny_esac):
     assert make_controller(f"esac-adaptive={model}", env).config()["probation"] == 50
 
 
+def test_reference_strokes_every_n_and_at_each_change_of_the_told_operating_point(tiny_esac):
+    """Without ``on_change`` every n-th stroke (as before); with it, also the first stroke told
+    another supply set-point (> 0.1 bar) or payload (> 5 %), n then counting from it; the
+    schedule survives a checkpoint, and bad settings are refused by name."""
+    from agents.adaptive import AdaptiveESAC, ReferenceSchedule
+
+    ks = np.arange(0, 1200)
+    np.testing.assert_array_equal(np.flatnonzero(ReferenceSchedule(100).flags(ks)),
+                                  np.arange(0, 1200, 100))
+    assert not ReferenceSchedule(0).flags(ks).any()
+
+    def told(k):
+        load = 10.0 if k < 300 else (10.4 if k < 600 else 25.0)  # +4 %: no reference; then +150 %
+        supply = 250_000.0 if k < 900 else 250_000.0 - 2e4  # -0.2 bar
+        return Conditions(supply_pressure_gauge_pa=supply, load_mass_kg=load)
+
+    sched = ReferenceSchedule(500, on_change=True)
+    got = np.concatenate([sched.flags(ks[i:i + 25], [told(k) for k in ks[i:i + 25]])
+                          for i in range(0, 1200, 25)])
+    assert np.flatnonzero(got).tolist() == [0, 500, 600, 900]
+    again = ReferenceSchedule(500, on_change=True)
+    again.restore(json.loads(json.dumps(sched.state())))
+    assert again.flags(np.arange(1200, 1500), [told(1000)] * 300).tolist() == (
+        sched.flags(np.arange(1200, 1500), [told(1000)] * 300).tolist())
+    with pytest.raises(ValueError, match="told conditions"):
+        ReferenceSchedule(500, on_change=True).flags(ks)
+    with pytest.raises(ValueError, match="reference_every"):
+        ReferenceSchedule(-1)
+    with pytest.raises(ValueError, match="reference_every"):
+        ReferenceSchedule(0, on_change=True)
+    env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    c = AdaptiveESAC(f"esac-adaptive={tiny_esac[0]}", env, reference_every=500,
+                     reference_on_change=True)
+    _, flags = c.plan(np.arange(0, 25), [told(0)] * 25)
+    assert flags["reference"].tolist() == [True] + [False] * 24
+    assert c.config()["reference_every"] == 500 and c.config()["reference_on_change"]
+    shipped = make_controller(f"esac-adaptive={tiny_esac[0]}", env).references
+    assert (shipped.every, shipped.on_change) == (100, False)  # the default: every 100th
+    assert make_controller("gaslaw-adaptive", env).references.every == 100
+    c2 = AdaptiveESAC(f"esac-adaptive={tiny_esac[0]}", env, reference_every=500,
+                      reference_on_change=True)
+    c2.restore(c.state(), None, "x")
+    assert c2.references.last == 0 and c2.references.point == (250_000.0, 10.0)
+
+
 def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esac):
     """With ``explore_max``, the tuned demand at the range's top step widens the range by its
     first width (the tuner's grid keeping its 0.05 step) up to ``explore_max``; below it, or by
@@ -826,7 +872,7 @@ def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esa
     c._grow()
     assert c.explore_range == (0.0, 0.6)
     np.testing.assert_allclose(c.tuner.grid, np.arange(13) * 0.05, atol=1e-12)
-    _, flags = c.plan(np.arange(1, 2001))
+    _, flags = c.plan(np.arange(1, 2001), [Conditions(load_mass_kg=10.0)] * 2000)
     drawn = c._planned[flags["explore"]]
     assert drawn.max() > 0.5 and drawn.min() >= 0.0 and (c._planned[~flags["explore"]] == 0.25).all()
     for _ in range(5):

@@ -278,7 +278,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
                                                                  for q in t[0]}, **refs})
             if env is None or env.num_envs != ks.size:
                 env = CutOffVectorEnv(num_envs=ks.size, autoreset=False, **env_config)
-            policy, flags = ctrl.plan(ks)
+            policy, flags = ctrl.plan(ks, [known(c) for c in conds])
             told = [commissioned(sc, seed, c, env.rig) for c in conds]
             fig, traces, dec = run_block(env, policy, conds, flags["reference"],
                                          seed=int(np.random.default_rng([seed, k0]).integers(
