@@ -856,6 +856,19 @@ def test_reference_strokes_every_n_and_at_each_change_of_the_told_operating_poin
     assert c2.references.last == 0 and c2.references.point == (250_000.0, 10.0)
 
 
+def test_a_life_takes_a_reference_stroke_where_the_told_payload_steps(tiny_esac, tmp_path):
+    """The operating loop tells the controller each stroke's payload: with
+    ``reference_on_change`` the first stroke at the new load runs uncut, and the record says so."""
+    sc = Scenario("step", drift={"load_mass_kg": [(0, 10.0), (29, 10.0), (30, 20.0)]})
+    rid = operate(sc, f"esac-adaptive={tiny_esac[0]}", strokes=60, db=tmp_path / "s.duckdb",
+                  block=20, progress=False,
+                  options={"reference_every": 500, "reference_on_change": True})
+    with Record(tmp_path / "s.duckdb", read_only=True) as rec:
+        s = rec.strokes(rid)
+    assert np.flatnonzero(s["reference"]).tolist() == [0, 30]
+    assert np.isnan(s["cutoff_time_s"][[0, 30]].astype(float)).all()  # run uncut
+
+
 def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esac):
     """With ``explore_max``, the tuned demand at the range's top step widens the range by its
     first width (the tuner's grid keeping its 0.05 step) up to ``explore_max``; below it, or by
