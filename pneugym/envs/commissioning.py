@@ -105,8 +105,16 @@ def simulated_features(rig: RigParams, record_dt_s: float = 1e-3) -> np.ndarray:
     from .cutoff import conventional_figures
 
     t_conv, _ = conventional_figures(rig)
-    # (a margin: a plant that had to retry with a shorter substep arrives a little later)
-    tr = Plant(rig).run(t_conv + HOLD_END_S + 0.25, cut_on_arrival=True, record_dt=record_dt_s)
+    # (a margin: a plant that had to retry with a shorter substep arrives a little later; one
+    # that arrives later still, e.g. creeping the last fraction of a millimetre after a
+    # stick-slip, is run again to its own arrival plus the hold)
+    t_end = t_conv + HOLD_END_S + 0.25
+    for _ in range(2):
+        tr = Plant(rig).run(t_end, cut_on_arrival=True, record_dt=record_dt_s)
+        arrived = np.flatnonzero(tr["x"] >= rig.cylinder.stroke_m - ARRIVAL_TOLERANCE_M)
+        if not arrived.size or tr["t"][-1] >= tr["t"][arrived[0]] + HOLD_END_S:
+            break
+        t_end = float(tr["t"][arrived[0]]) + HOLD_END_S + 0.25
     pa = rig.gas.ambient_pressure_pa
     out = scaled(trace_features(tr["t"], tr["x"], tr["p_drive_sensor"] - pa,
                                 tr["p_exhaust_sensor"] - pa, rig.cylinder.stroke_m))
