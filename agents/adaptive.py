@@ -6,9 +6,10 @@ set-point and the payload, and each finished stroke's measured outcome (complete
 stick-slip events the position trace shows, the stroke time an end switch gives, the wasted
 energy from the driving chamber's final pressure; :data:`MEASURED`).
 The conventional stroke time and energy that the objective is counted against are measured on
-*reference strokes*, run uncut (their air is spent, and counted): every 100th stroke, or, for
-adaptive ESAC with ``reference_on_change``, at each change of the told operating point and
-``reference_every`` strokes after the last one (:class:`ReferenceSchedule`).
+*reference strokes*, run uncut (their air is spent, and counted) or, with
+``reference_cut="arrival"``, cut off on arrival: every 100th stroke, or, for adaptive ESAC with
+``reference_on_change``, at each change of the told operating point and ``reference_every``
+strokes after the last one (:class:`ReferenceSchedule`).
 
 - :class:`Frozen`: any policy (a baseline's name or ``NAME=PATH`` of a trained one), unchanged.
 - :class:`AdaptiveGasLaw`: the Gas-Law rule with its K table scaled by a factor adjusted after
@@ -43,7 +44,7 @@ from .base import Policy
 #: the simulator's and stay with the report
 MEASURED = ("stroke", "reference", "explore", "supply_setpoint_pa", "cutoff_time_s", "completed",
             "stalled", "stick_slip_events", "stroke_time_s", "final_position_m",
-            "energy_wasted_j", "free_air_nl")
+            "energy_wasted_j", "energy_conventional_j", "free_air_nl")
 
 
 def measured_objective(rec: Mapping[str, np.ndarray], conv_time_s: np.ndarray,
@@ -61,36 +62,58 @@ def measured_objective(rec: Mapping[str, np.ndarray], conv_time_s: np.ndarray,
             - w_stall * (~done))
 
 
+def reference_energy(rec: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Each stroke's conventional energy [J] as a reference stroke measures it: the wasted
+    energy of an uncut stroke (the driving side filled to supply), else the recorded
+    ``energy_conventional_j`` (the same closed form, for a reference cut off on arrival)."""
+    wasted = np.asarray(rec["energy_wasted_j"], dtype=float)
+    conv, cut_s = rec.get("energy_conventional_j"), rec.get("cutoff_time_s")
+    if conv is None or cut_s is None:
+        return wasted
+    cut = np.array([v is not None and np.isfinite(float(v)) for v in cut_s])
+    conv = np.array([np.nan if v is None else float(v) for v in conv])
+    return np.where(cut & np.isfinite(conv), conv, wasted)
+
+
 def latest_reference(rec: Mapping[str, np.ndarray], conv: tuple[float, float]
                      ) -> tuple[float, float]:
-    """The stroke time [s] and wasted energy [J] of the block's last reference stroke (uncut),
-    else ``conv``: what an adapting controller's measured objective is counted against."""
+    """The stroke time [s] and conventional energy [J] of the block's last reference stroke
+    (:func:`reference_energy`), else ``conv``: what an adapting controller's measured objective
+    is counted against."""
     ref = np.flatnonzero(np.asarray(rec["reference"], dtype=bool))
     if not ref.size:
         return conv
-    return float(rec["stroke_time_s"][ref[-1]]), float(rec["energy_wasted_j"][ref[-1]])
+    return float(rec["stroke_time_s"][ref[-1]]), float(reference_energy(rec)[ref[-1]])
 
 
 #: with ``reference_on_change``, a reference stroke is due at a told supply set-point this far
 #: [Pa] from the last reference stroke's, or a payload this far (relative) from its payload
 REFERENCE_SUPPLY_TOL_PA = 1e4
 REFERENCE_LOAD_TOL = 0.05
+#: how a reference stroke runs: never cut (the conventional stroke), or cut off on arrival (the
+#: end-stroke rule, thesis 5.7: the same stroke time, and the air the valve's delay lets in)
+REFERENCE_CUTS = ("never", "arrival")
 
 
 class ReferenceSchedule:
-    """Which strokes run uncut as *reference strokes* (the conventional figures the measured
-    objective is counted against): every ``every``-th stroke (0: none). With ``on_change``,
+    """Which strokes run as *reference strokes* (the conventional figures the measured
+    objective is counted against), and how: every ``every``-th stroke (0: none), run uncut
+    (``cut="never"``) or cut off on arrival (``cut="arrival"``: the stroke time is the
+    conventional one, and the conventional energy the closed form the record keeps beside the
+    wasted energy, ``energy_conventional_j``). With ``on_change``,
     also the first stroke told an operating point away from the last reference stroke's
     (supply set-point by more than :data:`REFERENCE_SUPPLY_TOL_PA`, payload by more than
     :data:`REFERENCE_LOAD_TOL`), and ``every`` then counts from the last reference stroke: the
     conventional figures change with the operating point, and while it holds they drift only
     slowly (wear, leaks), so the references can be sparse."""
 
-    def __init__(self, every: int, on_change: bool = False):
+    def __init__(self, every: int, on_change: bool = False, cut: str = "never"):
         if not (isinstance(every, int) and every >= 0) or (on_change and every < 1):
             raise ValueError(f"reference_every = {every!r} must be an integer >= 0 (strokes "
                              f"between reference strokes; 0: none), >= 1 with reference_on_change")
-        self.every, self.on_change = every, bool(on_change)
+        if cut not in REFERENCE_CUTS:
+            raise ValueError(f"reference_cut = {cut!r}: choose from {REFERENCE_CUTS}")
+        self.every, self.on_change, self.cut = every, bool(on_change), cut
         self.last: int | None = None  # the last reference stroke (with on_change)
         self.point: tuple[float, float] | None = None  # its told (supply [Pa g], load [kg])
 
@@ -117,6 +140,11 @@ class ReferenceSchedule:
         return (abs(pt[0] - s0) > REFERENCE_SUPPLY_TOL_PA
                 or abs(pt[1] - m0) > REFERENCE_LOAD_TOL * max(abs(m0), 1e-9))
 
+    def config(self) -> dict[str, Any]:
+        """``reference_cut`` unless ``"never"`` (so that a run recorded before the option
+        resumes)."""
+        return {} if self.cut == "never" else {"reference_cut": self.cut}
+
     def state(self) -> dict[str, Any]:
         return {"last": self.last, "point": None if self.point is None else list(self.point)}
 
@@ -133,7 +161,8 @@ class Frozen:
     reference_every = 0  #: 0: no reference strokes
     privileged = False  #: told the true conditions (the oracle: a check, not a controller)
 
-    def __init__(self, spec: str, env: Any, seed: int = 0):
+    def __init__(self, spec: str, env: Any, seed: int = 0,
+                 references: ReferenceSchedule | None = None):
         from .evaluation.specs import make_named_policy
 
         self.spec = spec
@@ -141,7 +170,7 @@ class Frozen:
         self.privileged = bool(getattr(self.policy, "privileged", False))
         self.seed = int(seed)
         self.version = f"{self.name}"
-        self.references = ReferenceSchedule(self.reference_every)
+        self.references = references or ReferenceSchedule(self.reference_every)
 
     def config(self) -> dict[str, Any]:
         """What identifies the controller (recorded with the run)."""
@@ -149,8 +178,8 @@ class Frozen:
 
     def plan(self, strokes: np.ndarray, told: Any = None
              ) -> tuple[Policy, dict[str, np.ndarray]]:
-        """The policy for a block of strokes and each stroke's flags: ``reference`` (run uncut)
-        and ``explore``; ``told``: each stroke's told conditions (supply set-point, payload)."""
+        """The policy for a block of strokes and each stroke's flags: ``reference`` (run as
+        :attr:`references` says) and ``explore``; ``told``: each stroke's told conditions (supply set-point, payload)."""
         n = strokes.size
         return self.policy, {"reference": self.references.flags(strokes, told),
                              "explore": np.zeros(n, dtype=bool)}
@@ -185,8 +214,9 @@ class AdaptiveGasLaw(Frozen):
     reference_every = 100
 
     def __init__(self, env: Any, seed: int = 0, delta: float = 0.08, step: float = 0.04,
-                 backoff: float = 0.15, spec: str = "gaslaw"):
-        super().__init__(spec, env, seed)
+                 backoff: float = 0.15, spec: str = "gaslaw", reference_cut: str = "never"):
+        super().__init__(spec, env, seed,
+                         ReferenceSchedule(self.reference_every, cut=reference_cut))
         self.delta, self.step, self.backoff = float(delta), float(step), float(backoff)
         self.log_g = 0.0
         self.conv = (math.nan, math.nan)  # the latest reference stroke's time [s], energy [J]
@@ -197,7 +227,8 @@ class AdaptiveGasLaw(Frozen):
 
     def config(self) -> dict[str, Any]:
         return {**super().config(), "delta": self.delta, "step": self.step,
-                "backoff": self.backoff, "reference_every": self.reference_every}
+                "backoff": self.backoff, "reference_every": self.references.every,
+                **self.references.config()}
 
     def plan(self, strokes: np.ndarray, told: Any = None
              ) -> tuple[Any, dict[str, np.ndarray]]:
@@ -332,7 +363,8 @@ class AdaptiveESAC(Frozen):
     reference stroke; with ``reference_on_change`` one runs at the first stroke, at the first
     stroke told another operating point and ``reference_every`` strokes after the last one
     (:class:`ReferenceSchedule`; e.g. ``reference_every=500``: fewer uncut strokes, which paid
-    on the thesis-rig ESAC and cost the family ESAC, docs/operation.md)."""
+    on the thesis-rig ESAC and cost the family ESAC, docs/operation.md); ``reference_cut``:
+    ``"never"`` (uncut) or ``"arrival"`` (cut off on arrival)."""
 
     needs_inputs = True
     reference_every = 100
@@ -344,10 +376,9 @@ class AdaptiveESAC(Frozen):
                  tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50,
                  probation: int = 50, probation_stalls: int = 3,
                  explore_max: float | None = None, reference_every: int = 100,
-                 reference_on_change: bool = False):
-        self.reference_every = reference_every
-        super().__init__(spec, env, seed)
-        self.references = ReferenceSchedule(reference_every, reference_on_change)
+                 reference_on_change: bool = False, reference_cut: str = "never"):
+        super().__init__(spec, env, seed,
+                         ReferenceSchedule(reference_every, reference_on_change, reference_cut))
         from .esac.policy import ESACPolicy
 
         if not isinstance(self.policy, ESACPolicy):
@@ -405,12 +436,13 @@ class AdaptiveESAC(Frozen):
         return {**super().config(), "adapt_every": self.adapt_every, "window": self.window,
                 "holdout": self.holdout, "epochs": self.epochs, "lr": self.lr,
                 "min_gain": self.min_gain, "explore": self.explore,
-                "explore_range": list(self.explore_range), "reference_every": self.reference_every,
+                "explore_range": list(self.explore_range),
+                "reference_every": self.references.every,
                 "tune_demand": self.tune_demand, "tune_window": self.tuner.window,
                 "tune_z": self.tuner.z, "rollback_after": self.rollback_after,
                 "probation": self.probation, "probation_stalls": self.probation_stalls,
                 "explore_max": self.explore_max,
-                "reference_on_change": self.references.on_change}
+                "reference_on_change": self.references.on_change, **self.references.config()}
 
     def plan(self, strokes: np.ndarray, told: Any = None
              ) -> tuple[Any, dict[str, np.ndarray]]:
@@ -485,7 +517,7 @@ class AdaptiveESAC(Frozen):
                                        for v in rec["stroke_time_s"][use]], dtype=float),
             "conventional_time_s": rec["stroke_time_s"][j].astype(float),
             "energy_wasted_j": rec["energy_wasted_j"][use].astype(float),
-            "energy_conventional_j": rec["energy_wasted_j"][j].astype(float),
+            "energy_conventional_j": reference_energy(rec)[j],
         }
         x, y, mask, rows = samples(data, pred.stroke_m, pred.delay_input)
         return x, y, mask, rec["stroke"][use][rows]
@@ -552,7 +584,7 @@ class AdaptiveESAC(Frozen):
 
         self.last_adapt = stroke
         # a further reference_every strokes back: the reference stroke that labels the first ones
-        rec = record.strokes(run_id, max(0, stroke - self.window - self.reference_every),
+        rec = record.strokes(run_id, max(0, stroke - self.window - self.references.every),
                              stroke - 1, columns=MEASURED + ("decision_inputs",))
         got = self._samples(rec, first=stroke - self.window) if rec["stroke"].size else None
         if got is None:
@@ -665,9 +697,17 @@ def make_controller(spec: str, env: Any, seed: int = 0, **options: Any) -> Froze
     arguments of the adaptive controller (e.g. ``rollback_after=0``)."""
     if spec.startswith("esac-adaptive="):
         return AdaptiveESAC(spec, env, seed, **options)
-    if options:
-        raise ValueError(f"controller options {sorted(options)} are for esac-adaptive=PATH, "
-                         f"not {spec!r}")
     if spec == "gaslaw-adaptive":
-        return AdaptiveGasLaw(env, seed)
+        bad = sorted(set(options) - set(GASLAW_OPTIONS))
+        if bad:
+            raise ValueError(f"controller options {bad} are not gaslaw-adaptive's: it takes "
+                             f"{GASLAW_OPTIONS}")
+        return AdaptiveGasLaw(env, seed, **options)
+    if options:
+        raise ValueError(f"controller options {sorted(options)} are for esac-adaptive=PATH or "
+                         f"gaslaw-adaptive, not {spec!r}")
     return Frozen(spec, env, seed)
+
+
+#: the options :func:`make_controller` passes to :class:`AdaptiveGasLaw`
+GASLAW_OPTIONS = ("delta", "step", "backoff", "reference_cut")

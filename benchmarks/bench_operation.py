@@ -57,6 +57,9 @@ def main() -> None:
                         "operating point, reference-every then counting from the last one "
                         "(default: off, every reference-every-th stroke; tried: "
                         "--reference-every 500 --reference-on-change)")
+    p.add_argument("--reference-cut", choices=("never", "arrival"), default=None,
+                   help="esac-adaptive and gaslaw-adaptive: how a reference stroke runs, uncut "
+                        "(never, the default) or cut off on arrival")
     p.add_argument("--explore-max", type=float, default=None,
                    help="esac-adaptive: the largest time demand its explored range grows to, "
                         "e.g. 1.2 (default: the range, +0 to +30 %%, never grows)")
@@ -94,6 +97,9 @@ def main() -> None:
                                       ("reference_on_change", args.reference_on_change))
                     if v is not None}
             opts = opts if opts and c.startswith("esac-adaptive=") else None
+            if args.reference_cut is not None and (c == "gaslaw-adaptive"
+                                                   or c.startswith("esac-adaptive=")):
+                opts = {**(opts or {}), "reference_cut": args.reference_cut}
             ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
                                  options=opts, rig=args.rig, rig_name=args.rig_name)
     from pneugym.operation.monitor import alarm, monitor

@@ -69,8 +69,9 @@ def test_a_block_is_written_whole_or_not_at_all(tmp_path):
         row = {k: [None] for k in ("hour", "controller_version", "reference", "explore",
                                    "supply_setpoint_pa", "cutoff_time_s", "completed",
                                    "stalled", "stick_slip_events", "stroke_time_s",
-                                   "final_position_m", "energy_wasted_j", "free_air_nl",
-                                   "objective", "saving_ratio", "decision_inputs")}
+                                   "final_position_m", "energy_wasted_j",
+                                   "energy_conventional_j", "free_air_nl", "objective",
+                                   "saving_ratio", "decision_inputs")}
         tr = {k: np.zeros(3) for k in ("stroke", "t", "x", "p_drive", "p_exhaust", "valve")}
         rec.write_block("r", {**row, "stroke": [0]}, tr, 1, b"s1")
         with pytest.raises(Exception):  # stroke 0 again: the primary key refuses the block
@@ -867,6 +868,41 @@ def test_a_life_takes_a_reference_stroke_where_the_told_payload_steps(tiny_esac,
         s = rec.strokes(rid)
     assert np.flatnonzero(s["reference"]).tolist() == [0, 30]
     assert np.isnan(s["cutoff_time_s"][[0, 30]].astype(float)).all()  # run uncut
+
+
+def test_a_reference_stroke_cut_off_on_arrival_measures_the_conventional_figures(tmp_path):
+    """With ``reference_cut="arrival"`` a reference stroke is cut off on arrival: the same stroke
+    time as the uncut one, less air wasted, and the controller counts its measured objective
+    against the conventional energy the record keeps (``energy_conventional_j``, what the uncut
+    stroke wastes). Bad values are refused by name; the option is in the run's configuration
+    only when set (a run recorded before it resumes)."""
+    from agents.adaptive import AdaptiveGasLaw, ReferenceSchedule, latest_reference
+
+    sc = Scenario("flat", drift={"load_mass_kg": [(0, 10.0)]})
+    s = {}
+    for cut in ("never", "arrival"):
+        rid = operate(sc, "gaslaw-adaptive", strokes=2, db=tmp_path / f"{cut}.duckdb", seed=1,
+                      block=2, progress=False, options={"reference_cut": cut})
+        with Record(tmp_path / f"{cut}.duckdb", read_only=True) as rec:
+            s[cut] = rec.strokes(rid)
+            cfg = rec.run(rid)["config"]["controller"]
+        assert cfg.get("reference_cut") == (None if cut == "never" else cut)
+    uncut, cut = s["never"], s["arrival"]
+    assert uncut["reference"][0] and cut["reference"][0]
+    assert np.isnan(float(uncut["cutoff_time_s"][0])) and cut["cutoff_time_s"][0] > 0.9
+    assert cut["stroke_time_s"][0] == pytest.approx(uncut["stroke_time_s"][0], abs=1e-9)
+    assert uncut["energy_wasted_j"][0] == pytest.approx(uncut["energy_conventional_j"][0])
+    assert cut["energy_conventional_j"][0] == pytest.approx(uncut["energy_wasted_j"][0])
+    assert cut["energy_wasted_j"][0] < 0.7 * uncut["energy_wasted_j"][0]  # the saved air
+    assert cut["objective"][0] > uncut["objective"][0]
+    assert latest_reference(cut, (np.nan, np.nan)) == pytest.approx(
+        latest_reference(uncut, (np.nan, np.nan)))
+    with pytest.raises(ValueError, match="reference_cut"):
+        ReferenceSchedule(100, cut="sometimes")
+    env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
+    with pytest.raises(ValueError, match="not gaslaw-adaptive's"):
+        make_controller("gaslaw-adaptive", env, explore=0.2)
+    assert AdaptiveGasLaw(env).references.cut == "never"  # the default
 
 
 def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esac):

@@ -5,9 +5,10 @@ Tables (one database may hold many runs: a run is one scenario, seed and control
 - ``runs``: ``run_id``, scenario, seed, controller, strokes asked, the configuration and the
   versions (JSON), status.
 - ``strokes``: one row per stroke: what the controller decided (``cutoff_time_s``, its
-  ``controller_version``, whether it was an uncut ``reference`` stroke or an ``explore`` one) and
+  ``controller_version``, whether it was a ``reference`` stroke or an ``explore`` one) and
   the measured outcome (completion, stall, stick-slips, stroke time, final position, wasted
-  energy, free air), plus the objective; ``decision_inputs`` (the observations the controller
+  energy, free air; ``energy_conventional_j``, the driving side's energy filled to supply at
+  full stroke, the closed form of a conventional stroke's), plus the objective; ``decision_inputs`` (the observations the controller
   saw at the cut and before it, float32) for controllers that learn from them.
 - ``traces``: the sensor samples at the control rate: ``t`` [s], ``x`` [m], ``p_drive``,
   ``p_exhaust`` [Pa absolute], ``valve`` (1 supply, 0 cut off).
@@ -38,7 +39,9 @@ CREATE TABLE IF NOT EXISTS strokes (
     reference BOOLEAN, explore BOOLEAN, supply_setpoint_pa DOUBLE, cutoff_time_s DOUBLE,
     completed BOOLEAN, stalled BOOLEAN, stick_slip_events INTEGER, stroke_time_s DOUBLE,
     final_position_m DOUBLE, energy_wasted_j DOUBLE, free_air_nl DOUBLE, objective DOUBLE,
-    saving_ratio DOUBLE, decision_inputs BLOB, PRIMARY KEY (run_id, stroke));
+    saving_ratio DOUBLE, decision_inputs BLOB, energy_conventional_j DOUBLE,
+    PRIMARY KEY (run_id, stroke));
+ALTER TABLE strokes ADD COLUMN IF NOT EXISTS energy_conventional_j DOUBLE;
 CREATE TABLE IF NOT EXISTS traces (
     run_id VARCHAR, stroke BIGINT, t DOUBLE, x DOUBLE, p_drive DOUBLE, p_exhaust DOUBLE,
     valve TINYINT);
@@ -60,7 +63,8 @@ CREATE TABLE IF NOT EXISTS checkpoints (
 STROKE_COLUMNS = ("stroke", "hour", "controller_version", "reference", "explore",
                   "supply_setpoint_pa", "cutoff_time_s", "completed", "stalled",
                   "stick_slip_events", "stroke_time_s", "final_position_m", "energy_wasted_j",
-                  "free_air_nl", "objective", "saving_ratio", "decision_inputs")
+                  "energy_conventional_j", "free_air_nl", "objective", "saving_ratio",
+                  "decision_inputs")
 TRACE_COLUMNS = ("stroke", "t", "x", "p_drive", "p_exhaust", "valve")
 TRUTH_COLUMNS = ("stroke", "supply_pressure_gauge_pa", "load_mass_kg", "friction_scale",
                  "valve_delay_scale", "leak_drive_area_m2", "conventional_time_s",
@@ -241,7 +245,11 @@ class Record:
                 columns: Sequence[str] = STROKE_COLUMNS[:-1]) -> dict[str, np.ndarray]:
         """Recorded strokes of a run (``decision_inputs`` only if asked for), by stroke."""
         last = 2**62 if last is None else last
-        return self.frame(f"SELECT {', '.join(columns)} FROM strokes WHERE run_id = ? AND "
+        have = {r[0] for r in self.con.execute(
+            "SELECT column_name FROM information_schema.columns WHERE table_name = 'strokes'"
+        ).fetchall()}  # a record written before a column was added reads it as NULL
+        cols = ", ".join(c if c in have else f"NULL AS {c}" for c in columns)
+        return self.frame(f"SELECT {cols} FROM strokes WHERE run_id = ? AND "
                           f"stroke BETWEEN ? AND ? ORDER BY stroke", [run_id, first, last])
 
     def trace(self, run_id: str, stroke: int) -> dict[str, np.ndarray]:

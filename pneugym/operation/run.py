@@ -37,10 +37,13 @@ def run_id_of(scenario: str, seed: int, controller: str) -> str:
 class _Stepper:
     """Runs one block of strokes under a policy and records what the controller saw: the sensor
     samples of every step and, for controllers that learn from them, the observations at the
-    cut and :data:`agents.esac.LAGS` control periods before it (in the model's layout)."""
+    cut and :data:`agents.esac.LAGS` control periods before it (in the model's layout). Rows
+    ``keep`` (reference strokes) run ``keep_policy`` instead (``None``: never cut)."""
 
-    def __init__(self, policy: Any, keep: np.ndarray, inputs: bool, lags: tuple[int, ...]):
+    def __init__(self, policy: Any, keep: np.ndarray, inputs: bool, lags: tuple[int, ...],
+                 keep_policy: Any = None):
         self.policy, self.keep, self.inputs = policy, keep, inputs
+        self.keep_policy = keep_policy
         self.lags = np.asarray(lags, dtype=np.int64)
         self.k = 0
 
@@ -57,9 +60,10 @@ class _Stepper:
             self.ring[self.k % depth] = m
         else:
             a = np.asarray(self.policy.act(obs), dtype=np.int64)
-        a = np.where(self.keep, 0, a)
+        ref = 0 if self.keep_policy is None else np.asarray(self.keep_policy.act(obs), np.int64)
+        a = np.where(self.keep, ref, a)
         if self.inputs:
-            new = np.flatnonzero((a == 1) & ~self.cut_seen)
+            new = np.flatnonzero((a == 1) & ~self.cut_seen & ~self.keep)
             for j, lag in enumerate(self.lags):
                 if self.k - lag >= 0:
                     self.at_cut[new, j] = self.ring[(self.k - lag) % depth, new]
@@ -126,9 +130,10 @@ def commissioned(sc: Scenario, seed: int, cond: Any, base: Any) -> np.ndarray:
 
 def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, inputs: bool,
               lags: tuple[int, ...] = (0,), dwell_s: float = 0.0, privileged: bool = False,
-              commissioning: list | None = None
+              commissioning: list | None = None, keep_cut: str = "never"
               ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], list]:
-    """One block: every stroke of ``conds`` under ``policy`` (rows ``keep`` never cut), each
+    """One block: every stroke of ``conds`` under ``policy`` (rows ``keep``, the reference
+    strokes, never cut, or with ``keep_cut="arrival"`` cut off on arrival), each
     followed by a rest of ``dwell_s`` at the end (:func:`dwell`). Returns the final figures, the
     sensor traces (``row``, ``t``, ``x``, ``p_drive``, ``p_exhaust`` absolute, ``valve``) and
     each row's decision inputs (float32 bytes, or None). The policy is told each stroke's
@@ -141,7 +146,7 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     n = env.num_envs
     read = ObservationReader(env.observation_layout())
     pa = float(env.rig.gas.ambient_pressure_pa)
-    step = _Stepper(policy, keep, inputs, lags)
+    step = _Stepper(policy, keep, inputs, lags, _keep_policy(env, keep_cut))
     options: dict[str, Any] = {"conditions": list(conds)}
     if commissioning is not None:
         options["commissioning"] = list(commissioning)
@@ -178,6 +183,17 @@ def run_block(env: Any, policy: Any, conds: list, keep: np.ndarray, seed: int, i
     if inputs:
         dec = [step.at_cut[i].tobytes() if step.cut_seen[i] else None for i in range(n)]
     return {k: np.array(v, dtype=object) for k, v in out.items()}, traces, dec
+
+
+def _keep_policy(env: Any, keep_cut: str) -> Any:
+    """How reference strokes run: ``"never"`` cut (``None``), or ``"arrival"``: cut off on
+    arrival (:class:`agents.baselines.EndStrokePolicy`, thesis 5.7)."""
+    from agents.adaptive import REFERENCE_CUTS
+    from agents.baselines import EndStrokePolicy
+
+    if keep_cut not in REFERENCE_CUTS:
+        raise ValueError(f"keep_cut = {keep_cut!r}: choose from {REFERENCE_CUTS}")
+    return EndStrokePolicy(env.observation_layout()) if keep_cut == "arrival" else None
 
 
 def references(oracle: Any, conds: list, dwell_s: float = 0.0) -> dict[str, np.ndarray]:
@@ -284,7 +300,7 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
                                          seed=int(np.random.default_rng([seed, k0]).integers(
                                              2**31)), inputs=ctrl.needs_inputs, lags=LAGS,
                                          dwell_s=float(dwell_s), privileged=ctrl.privileged,
-                                         commissioning=told)
+                                         commissioning=told, keep_cut=ctrl.references.cut)
             rows = _stroke_rows(sc, ks, fig, flags, dec, ctrl.version, conds)
             ctrl.update({k: _measured(rows[k]) for k in MEASURED})
             traces["stroke"] = ks[traces.pop("row")]
@@ -326,7 +342,8 @@ def _stroke_rows(sc: Scenario, ks: np.ndarray, fig: dict, flags: dict, dec: list
         "cutoff_time_s": col("cutoff_time_s"), "completed": col("completed"),
         "stalled": col("stalled"), "stick_slip_events": col("stick_slip_events"),
         "stroke_time_s": col("stroke_time_s"), "final_position_m": col("position_m"),
-        "energy_wasted_j": col("energy_wasted_j"), "free_air_nl": col("free_air_nl"),
+        "energy_wasted_j": col("energy_wasted_j"),
+        "energy_conventional_j": col("energy_conventional_j"), "free_air_nl": col("free_air_nl"),
         "objective": col("objective"), "saving_ratio": col("saving_ratio"),
         "decision_inputs": dec,
     }
