@@ -27,17 +27,23 @@ HOLD_START_S, HOLD_END_S = 0.5, 1.5  # the hold window [s after the arrival]
 WINDOW_S = 0.01  # pressures are averaged over this much [s] (the noise of a single sample)
 
 
+def arrival_index(x: np.ndarray, stroke_m: float) -> int | None:
+    """The first sample of ``x`` [m] within :data:`ARRIVAL_TOLERANCE_M` of the stroke's end
+    (``stroke_m``), or None if the piston never gets there."""
+    arrived = np.flatnonzero(np.asarray(x) >= stroke_m - ARRIVAL_TOLERANCE_M)
+    return int(arrived[0]) if arrived.size else None
+
+
 def trace_features(t: np.ndarray, x: np.ndarray, p_drive: np.ndarray, p_exhaust: np.ndarray,
                    stroke_m: float, what: str = "the commissioning stroke") -> np.ndarray:
     """The unscaled :data:`COMMISSIONING_OBSERVATION` of a stroke cut off on arrival and held:
     samples ``t`` [s] from the extend command, position ``x`` [m], port pressures gauge [Pa].
     Raises ``ValueError`` when the piston never arrives or the record ends before the hold."""
     t, x, pd, pe = (np.asarray(a, dtype=float) for a in (t, x, p_drive, p_exhaust))
-    arrived = np.flatnonzero(x >= stroke_m - ARRIVAL_TOLERANCE_M)
-    if not arrived.size:
+    ia = arrival_index(x, stroke_m)
+    if ia is None:
         raise ValueError(f"{what}: the piston never reaches the end of stroke ({stroke_m:g} m; "
                          f"at most {np.max(x):.4g} m): record a stroke that completes")
-    ia = int(arrived[0])
     ta = float(t[ia])
     if t[-1] < ta + HOLD_END_S:
         raise ValueError(f"{what} ends {t[-1] - ta:.3g} s after the arrival; record at least "
@@ -111,10 +117,10 @@ def simulated_features(rig: RigParams, record_dt_s: float = 1e-3) -> np.ndarray:
     t_end = t_conv + HOLD_END_S + 0.25
     for _ in range(2):
         tr = Plant(rig).run(t_end, cut_on_arrival=True, record_dt=record_dt_s)
-        arrived = np.flatnonzero(tr["x"] >= rig.cylinder.stroke_m - ARRIVAL_TOLERANCE_M)
-        if not arrived.size or tr["t"][-1] >= tr["t"][arrived[0]] + HOLD_END_S:
+        ia = arrival_index(tr["x"], rig.cylinder.stroke_m)
+        if ia is None or tr["t"][-1] >= tr["t"][ia] + HOLD_END_S:
             break
-        t_end = float(tr["t"][arrived[0]]) + HOLD_END_S + 0.25
+        t_end = float(tr["t"][ia]) + HOLD_END_S + 0.25
     pa = rig.gas.ambient_pressure_pa
     out = scaled(trace_features(tr["t"], tr["x"], tr["p_drive_sensor"] - pa,
                                 tr["p_exhaust_sensor"] - pa, rig.cylinder.stroke_m))
