@@ -6,8 +6,9 @@ set-point and the payload, and each finished stroke's measured outcome (complete
 stick-slip events the position trace shows, the stroke time an end switch gives, the wasted
 energy from the driving chamber's final pressure; :data:`MEASURED`).
 The conventional stroke time and energy that the objective is counted against are measured on
-*reference strokes*, run uncut (their air is spent, and counted) or, with
-``reference_cut="arrival"``, cut off on arrival: every 100th stroke, or, for adaptive ESAC with
+*reference strokes*, cut off on arrival (the end-stroke rule: the conventional stroke time, and
+the air the valve's delay lets in, spent and counted) or, with ``reference_cut="never"``, run
+uncut (all their air spent): every 100th stroke, or, for adaptive ESAC with
 ``reference_on_change``, at each change of the told operating point and ``reference_every``
 strokes after the last one (:class:`ReferenceSchedule`).
 
@@ -214,7 +215,7 @@ class AdaptiveGasLaw(Frozen):
     reference_every = 100
 
     def __init__(self, env: Any, seed: int = 0, delta: float = 0.08, step: float = 0.04,
-                 backoff: float = 0.15, spec: str = "gaslaw", reference_cut: str = "never"):
+                 backoff: float = 0.15, spec: str = "gaslaw", reference_cut: str = "arrival"):
         super().__init__(spec, env, seed,
                          ReferenceSchedule(self.reference_every, cut=reference_cut))
         self.delta, self.step, self.backoff = float(delta), float(step), float(backoff)
@@ -364,7 +365,7 @@ class AdaptiveESAC(Frozen):
     stroke told another operating point and ``reference_every`` strokes after the last one
     (:class:`ReferenceSchedule`; e.g. ``reference_every=500``: fewer uncut strokes, which paid
     on the thesis-rig ESAC and cost the family ESAC, docs/operation.md); ``reference_cut``:
-    ``"never"`` (uncut) or ``"arrival"`` (cut off on arrival)."""
+    ``"arrival"`` (cut off on arrival, the default) or ``"never"`` (uncut)."""
 
     needs_inputs = True
     reference_every = 100
@@ -376,7 +377,7 @@ class AdaptiveESAC(Frozen):
                  tune_window: int = 250, tune_z: float = 2.0, rollback_after: int = 50,
                  probation: int = 50, probation_stalls: int = 3,
                  explore_max: float | None = None, reference_every: int = 100,
-                 reference_on_change: bool = False, reference_cut: str = "never"):
+                 reference_on_change: bool = False, reference_cut: str = "arrival"):
         super().__init__(spec, env, seed,
                          ReferenceSchedule(reference_every, reference_on_change, reference_cut))
         from .esac.policy import ESACPolicy

@@ -58,8 +58,8 @@ def main() -> None:
                         "(default: off, every reference-every-th stroke; tried: "
                         "--reference-every 500 --reference-on-change)")
     p.add_argument("--reference-cut", choices=("never", "arrival"), default=None,
-                   help="esac-adaptive and gaslaw-adaptive: how a reference stroke runs, uncut "
-                        "(never, the default) or cut off on arrival")
+                   help="esac-adaptive and gaslaw-adaptive: how a reference stroke runs: cut off "
+                        "on arrival (arrival, the default) or uncut (never, the earlier default)")
     p.add_argument("--explore-max", type=float, default=None,
                    help="esac-adaptive: the largest time demand its explored range grows to, "
                         "e.g. 1.2 (default: the range, +0 to +30 %%, never grows)")

@@ -104,12 +104,12 @@ def test_references_bound_the_controllers(gaslaw_life):
     assert oracle["oracle_fraction"] == pytest.approx(1.0, abs=1e-9)
     assert conv["oracle_fraction"] == pytest.approx(0.0, abs=1e-9)
     assert conv["air_fraction"] == pytest.approx(0.0, abs=1e-9)
-    assert ad["strokes"] == 60 and ad["reference_strokes"] == 1  # stroke 0 runs uncut
+    assert ad["strokes"] == 60 and ad["reference_strokes"] == 1  # stroke 0
     assert ad["oracle_fraction"] < 1.0
     assert oracle["oracle_fraction_regular"] == pytest.approx(1.0, abs=1e-9)
     assert oracle["oracle_fraction_last"] == pytest.approx(1.0, abs=1e-9)
     assert conv["oracle_fraction_last"] == pytest.approx(0.0, abs=1e-9)
-    assert ad["oracle_fraction_regular"] > ad["oracle_fraction"]  # without the uncut stroke
+    assert ad["oracle_fraction_regular"] > ad["oracle_fraction"]  # without the reference
     with Record(db, read_only=True) as rec:
         d = life(rec, ids["gaslaw-adaptive"])
     # the air is counted alike (to the end of each stroke's rest): a cut stroke draws less
@@ -220,7 +220,7 @@ def test_exports_parquet_and_measured_runs(gaslaw_life, tmp_path):
     assert pq.fetchone()[0] == n
     assert len(runs) == 3
     r0, r1 = read_run(runs[0]), read_run(runs[1])
-    assert r0.description == "conventional" and r1.description == "early_cutoff"
+    assert r0.description == "end_stroke_cutoff" and r1.description == "early_cutoff"
     np.testing.assert_allclose(r1.p_drive, tr["p_drive"])
     assert r1.valve[0] == 1 and r1.valve[-1] == 0 and r1.meta["sample_rate_hz"] == \
         pytest.approx(200.0)
@@ -859,7 +859,8 @@ def test_reference_strokes_every_n_and_at_each_change_of_the_told_operating_poin
 
 def test_a_life_takes_a_reference_stroke_where_the_told_payload_steps(tiny_esac, tmp_path):
     """The operating loop tells the controller each stroke's payload: with
-    ``reference_on_change`` the first stroke at the new load runs uncut, and the record says so."""
+    ``reference_on_change`` the first stroke at the new load is a reference stroke (cut off on
+    arrival), and the record says so."""
     sc = Scenario("step", drift={"load_mass_kg": [(0, 10.0), (29, 10.0), (30, 20.0)]})
     rid = operate(sc, f"esac-adaptive={tiny_esac[0]}", strokes=60, db=tmp_path / "s.duckdb",
                   block=20, progress=False,
@@ -867,15 +868,16 @@ def test_a_life_takes_a_reference_stroke_where_the_told_payload_steps(tiny_esac,
     with Record(tmp_path / "s.duckdb", read_only=True) as rec:
         s = rec.strokes(rid)
     assert np.flatnonzero(s["reference"]).tolist() == [0, 30]
-    assert np.isnan(s["cutoff_time_s"][[0, 30]].astype(float)).all()  # run uncut
+    assert (s["cutoff_time_s"][[0, 30]].astype(float) > 0.9).all()  # cut off on arrival
 
 
 def test_a_reference_stroke_cut_off_on_arrival_measures_the_conventional_figures(tmp_path):
-    """With ``reference_cut="arrival"`` a reference stroke is cut off on arrival: the same stroke
-    time as the uncut one, less air wasted, and the controller counts its measured objective
-    against the conventional energy the record keeps (``energy_conventional_j``, what the uncut
-    stroke wastes). Bad values are refused by name; the option is in the run's configuration
-    only when set (a run recorded before it resumes)."""
+    """With ``reference_cut="arrival"`` (the default) a reference stroke is cut off on arrival:
+    the same stroke time as the uncut one (``"never"``, the earlier default), less air wasted,
+    and the controller counts its measured objective against the conventional energy the record
+    keeps (``energy_conventional_j``, what the uncut stroke wastes). Bad values are refused by
+    name; ``"never"`` leaves the run's configuration as it was before the option (an earlier
+    record resumes with it)."""
     from agents.adaptive import AdaptiveGasLaw, ReferenceSchedule, latest_reference
 
     sc = Scenario("flat", drift={"load_mass_kg": [(0, 10.0)]})
@@ -902,7 +904,7 @@ def test_a_reference_stroke_cut_off_on_arrival_measures_the_conventional_figures
     env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
     with pytest.raises(ValueError, match="not gaslaw-adaptive's"):
         make_controller("gaslaw-adaptive", env, explore=0.2)
-    assert AdaptiveGasLaw(env).references.cut == "never"  # the default
+    assert AdaptiveGasLaw(env).references.cut == "arrival"  # the default
 
 
 def test_the_explored_demands_grow_when_the_tuned_one_reaches_their_top(tiny_esac):

@@ -309,7 +309,8 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
     CSV + JSON pair per stroke, at the control rate; the rig section is the operated rig as
     commissioned at each stroke's supply, whose valve switches faster at a higher supply
     (thesis Fig. 3.6; the format states the delay itself), the load and supply each stroke's),
-    e.g. for the discrepancy workflow."""
+    e.g. for the discrepancy workflow; described as ``conventional`` (uncut), ``end_stroke_cutoff``
+    (a reference stroke cut off on arrival) or ``early_cutoff``."""
     from ..data import FORMAT, MeasuredRun, write_run
     from ..params import RigParams
 
@@ -318,14 +319,15 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
         raise ValueError(f"no run {run_id!r} in {rec.path}")
     rig = run_rig(run["config"]) or RigParams()
     last = 2**62 if last is None else last
-    meta = rec.frame("SELECT s.stroke, s.supply_setpoint_pa, t.load_mass_kg, s.cutoff_time_s "
-                     "FROM strokes s JOIN truth t ON t.scenario = ? AND t.seed = ? AND "
+    meta = rec.frame("SELECT s.stroke, s.supply_setpoint_pa, t.load_mass_kg, s.cutoff_time_s, "
+                     "s.reference FROM strokes s JOIN truth t ON t.scenario = ? AND t.seed = ? AND "
                      "t.stroke = s.stroke WHERE s.run_id = ? AND s.stroke BETWEEN ? AND ? "
                      "ORDER BY s.stroke", [run["scenario"], run["seed"], run_id, first, last])
     out = Path(out)
     files = []
-    for k, ps, load, tc in zip(*(meta[c] for c in ("stroke", "supply_setpoint_pa",
-                                                   "load_mass_kg", "cutoff_time_s"))):
+    for k, ps, load, tc, ref in zip(*(meta[c] for c in ("stroke", "supply_setpoint_pa",
+                                                        "load_mass_kg", "cutoff_time_s",
+                                                        "reference"))):
         tr = rec.trace(run_id, int(k))
         m = {"format": FORMAT, "supply_pressure_gauge_pa": float(ps),
              "load_mass_kg": float(load),
@@ -333,7 +335,8 @@ def export_runs(rec: Record, run_id: str, out: str | Path, first: int = 0,
              "ambient_temperature_k": rig.gas.ambient_temperature_k,
              "sample_rate_hz": 1.0 / float(np.median(np.diff(tr["t"]))),
              "rig": rig.with_(supply_pressure_gauge_pa=float(ps)).to_measurement_rig(),
-             "description": "conventional" if np.isnan(tc) else "early_cutoff",
+             "description": ("conventional" if np.isnan(tc) else
+                             "end_stroke_cutoff" if ref else "early_cutoff"),
              "operation": {"run_id": run_id, "stroke": int(k)}}
         files.append(write_run(MeasuredRun(
             name=f"stroke{int(k):07d}", t=tr["t"], valve=tr["valve"].astype(float), x=tr["x"],

@@ -4,7 +4,7 @@ JSON) of :func:`write_report`.
 
 ``oracle_fraction = (J - J_conventional) / (J_oracle - J_conventional)`` on the summed objective
 of the strokes (the same definition as the evaluation's); ``air_fraction`` is the air saved
-against the conventional controller over what the oracle saves. Reference strokes (uncut) and
+against the conventional controller over what the oracle saves. Reference strokes and
 exploring ones count as the controller's strokes: their air is spent.
 ``oracle_fraction_regular`` leaves them out: what the controller's own decisions get.
 """
