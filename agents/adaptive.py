@@ -180,7 +180,8 @@ class Frozen:
     def plan(self, strokes: np.ndarray, told: Any = None
              ) -> tuple[Policy, dict[str, np.ndarray]]:
         """The policy for a block of strokes and each stroke's flags: ``reference`` (run as
-        :attr:`references` says) and ``explore``; ``told``: each stroke's told conditions (supply set-point, payload)."""
+        :attr:`references` says) and ``explore``; ``told``: each stroke's told conditions
+        (supply set-point, payload)."""
         n = strokes.size
         return self.policy, {"reference": self.references.flags(strokes, told),
                              "explore": np.zeros(n, dtype=bool)}
@@ -236,7 +237,7 @@ class AdaptiveGasLaw(Frozen):
         ref = self.references.flags(strokes, told)
         sign = np.where(strokes % 2 == 0, 1.0, -1.0)
         factor = np.exp(self.log_g + self.delta * sign)
-        factor[ref] = 1e9  # never cut
+        factor[ref] = 1e9  # (the loop runs the reference strokes as the schedule says)
         self.policy.k_scale = factor
         return self.policy, {"reference": ref, "explore": np.zeros(strokes.size, bool)}
 

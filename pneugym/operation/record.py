@@ -8,8 +8,9 @@ Tables (one database may hold many runs: a run is one scenario, seed and control
   ``controller_version``, whether it was a ``reference`` stroke or an ``explore`` one) and
   the measured outcome (completion, stall, stick-slips, stroke time, final position, wasted
   energy, free air; ``energy_conventional_j``, the driving side's energy filled to supply at
-  full stroke, the closed form of a conventional stroke's), plus the objective; ``decision_inputs`` (the observations the controller
-  saw at the cut and before it, float32) for controllers that learn from them.
+  full stroke, the closed form of a conventional stroke's), plus the objective;
+  ``decision_inputs`` (the observations the controller saw at the cut and before it, float32)
+  for controllers that learn from them.
 - ``traces``: the sensor samples at the control rate: ``t`` [s], ``x`` [m], ``p_drive``,
   ``p_exhaust`` [Pa absolute], ``valve`` (1 supply, 0 cut off).
 - ``truth``: the hidden truth per scenario, seed and stroke (the drifting quantities), with what
