@@ -237,7 +237,6 @@ class AdaptiveGasLaw(Frozen):
         ref = self.references.flags(strokes, told)
         sign = np.where(strokes % 2 == 0, 1.0, -1.0)
         factor = np.exp(self.log_g + self.delta * sign)
-        factor[ref] = 1e9  # (the loop runs the reference strokes as the schedule says)
         self.policy.k_scale = factor
         return self.policy, {"reference": ref, "explore": np.zeros(strokes.size, bool)}
 
