@@ -47,6 +47,25 @@ class Run:
 
 DOCS = "tests/test_docs.py"
 
+#: Under ``pytest -n N`` (N > 1) the workers already keep the cores busy: each worker, and every
+#: command a docs test starts (:data:`ONE_THREAD`), runs numba and torch on one thread, as
+#: anything beside other work should (docs/scale.md: a descheduled thread stalls its team at
+#: every step, and a spinning one takes the other worker's core). The tests of the threaded path
+#: set their threads themselves. Results do not depend on the thread count (tested).
+SHARED_CORES = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1
+ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "OPENBLAS_NUM_THREADS": "1"} if SHARED_CORES else {}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """One numba and one torch thread per worker when several workers share the cores."""
+    if SHARED_CORES:
+        import numba
+        import torch
+
+        numba.set_num_threads(1)
+        torch.set_num_threads(1)
+
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The docs pages (``test_docs.py``, the longest single tests) first, so that under

@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import ONE_THREAD
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("**/*.md"))]
@@ -85,7 +86,7 @@ def swapped(code: str, swaps: str, where: str) -> str:
 
 def run_shell(code: str, opts: dict[str, str], cwd: Path) -> None:
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-           "MPLBACKEND": "Agg"}
+           "MPLBACKEND": "Agg", **ONE_THREAD}
     bindir = Path(sys.executable).parent
     env["PATH"] = f"{bindir}{os.pathsep}{env['PATH']}"
     for cmd in commands(code):
