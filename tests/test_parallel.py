@@ -188,12 +188,13 @@ def ray_head():
             assert head.poll() is None, "ray start --head exited"
             time.sleep(1)
         yield address, env
-    finally:
+    finally:  # Ray's graceful stop takes about 30 s; its workers exit with their raylet
         os.killpg(head.pid, signal.SIGTERM)
         try:
-            head.wait(timeout=60)
+            head.wait(timeout=5)
         except subprocess.TimeoutExpired:
             os.killpg(head.pid, signal.SIGKILL)
+            head.wait(timeout=60)
         shutil.rmtree(temp, ignore_errors=True)
 
 
