@@ -696,6 +696,11 @@ def make_controller(spec: str, env: Any, seed: int = 0, **options: Any) -> Froze
     """An operating controller from its spec: ``NAME`` or ``NAME=PATH`` (frozen),
     ``gaslaw-adaptive``, or ``esac-adaptive=PATH`` (an ESAC run or model); ``options``: keyword
     arguments of the adaptive controller (e.g. ``rollback_after=0``)."""
+    if not is_adaptive(spec):
+        if options:
+            raise ValueError(f"controller options {sorted(options)} are for esac-adaptive=PATH "
+                             f"or gaslaw-adaptive, not {spec!r}")
+        return Frozen(spec, env, seed)
     if spec.startswith("esac-adaptive="):
         return AdaptiveESAC(spec, env, seed, **options)
     if spec == "gaslaw-adaptive":
@@ -704,11 +709,12 @@ def make_controller(spec: str, env: Any, seed: int = 0, **options: Any) -> Froze
             raise ValueError(f"controller options {bad} are not gaslaw-adaptive's: it takes "
                              f"{GASLAW_OPTIONS}")
         return AdaptiveGasLaw(env, seed, **options)
-    if options:
-        raise ValueError(f"controller options {sorted(options)} are for esac-adaptive=PATH or "
-                         f"gaslaw-adaptive, not {spec!r}")
-    return Frozen(spec, env, seed)
 
 
 #: the options :func:`make_controller` passes to :class:`AdaptiveGasLaw`
 GASLAW_OPTIONS = ("delta", "step", "backoff", "reference_cut")
+
+
+def is_adaptive(spec: str) -> bool:
+    """Whether controller ``spec`` (of :func:`make_controller`) adapts, i.e. takes options."""
+    return spec == "gaslaw-adaptive" or spec.startswith("esac-adaptive=")

@@ -25,6 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from agents.adaptive import is_adaptive  # noqa: E402
 from pneugym.operation.report import write_report  # noqa: E402
 from pneugym.operation.run import operate  # noqa: E402
 from pneugym.operation.scenarios import SCENARIOS  # noqa: E402
@@ -97,8 +98,7 @@ def main() -> None:
                                       ("reference_on_change", args.reference_on_change))
                     if v is not None}
             opts = opts if opts and c.startswith("esac-adaptive=") else None
-            if args.reference_cut is not None and (c == "gaslaw-adaptive"
-                                                   or c.startswith("esac-adaptive=")):
+            if args.reference_cut is not None and is_adaptive(c):
                 opts = {**(opts or {}), "reference_cut": args.reference_cut}
             ids[sc, c] = operate(sc, c, strokes=args.strokes, db=db, seed=args.seed,
                                  options=opts, rig=args.rig, rig_name=args.rig_name)

@@ -627,6 +627,32 @@ def test_cli_hands_the_monitor_its_options(tmp_path, monkeypatch):
     assert got["passes"] == 1 and got["stroke_friction"] is False
 
 
+def test_cli_hands_the_adaptive_controllers_the_reference_cut(tmp_path, monkeypatch, capsys):
+    """``--reference-cut`` reaches the adaptive controllers only (a frozen one takes no
+    options); without an adaptive controller it is refused by name."""
+    import pneugym.operation.run as R
+    from agents.adaptive import is_adaptive
+    from pneugym.cli import main
+
+    got = {}
+    monkeypatch.setattr(R, "operate", lambda sc, spec, **kw: got.update({spec: kw["options"]})
+                        or f"{sc}/seed0/{spec}")
+    argv = ["operate", "--db", str(tmp_path / "x.duckdb"), "--scenario", "healthy",
+            "--policy", "gaslaw", "--policy", "gaslaw-adaptive", "--policy",
+            "esac-adaptive=runs/esac", "--no-progress"]
+    assert main(argv + ["--reference-cut", "never"]) == 0
+    assert got == {"gaslaw": None, "gaslaw-adaptive": {"reference_cut": "never"},
+                   "esac-adaptive=runs/esac": {"reference_cut": "never"}}
+    assert main(argv) == 0 and set(got.values()) == {None}  # the controllers' default
+    with pytest.raises(SystemExit):
+        main(argv[:7] + ["--reference-cut", "arrival"])
+    assert "--reference-cut is an option of the adaptive controllers" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(argv + ["--reference-cut", "sometimes"])
+    assert [is_adaptive(s) for s in ("gaslaw", "esac=runs/esac", "gaslaw-adaptive",
+                                     "esac-adaptive=runs/esac")] == [False, False, True, True]
+
+
 def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path):
     """benchmarks/bench_operation_oracle.py on a short record: the search oracle's own run
     scores 1 against it and at most 1 against every step's best, the conventional one 0 against

@@ -41,6 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the rig's name in the record (default the rig file's stem)")
     p.add_argument("--strokes", type=int, default=5000, help="strokes to run (default 5000)")
     p.add_argument("--seed", type=int, default=0, help="the scenario's seed (default 0)")
+    p.add_argument("--reference-cut", choices=("never", "arrival"), default=None,
+                   help="the adaptive controllers' reference strokes (every 100th, which their "
+                        "measured objective counts against): cut off on arrival (arrival, the "
+                        "default) or uncut (never, the earlier default)")
     p.add_argument("--block", type=int, default=25,
                    help="strokes per block: a controller learns between blocks (default 25)")
     p.add_argument("--db", default="ops.duckdb", help="the DuckDB record (default ops.duckdb); "
@@ -136,13 +140,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             except ValueError as exc:
                 parser.error(str(exc))
         print(f"removed {rid} ({n} strokes) from {args.db}")
+    from agents.adaptive import is_adaptive
+
+    if args.reference_cut and not any(map(is_adaptive, args.policy)):
+        parser.error("--reference-cut is an option of the adaptive controllers: give "
+                     "--policy gaslaw-adaptive or --policy esac-adaptive=RUN")
+    cut = {"reference_cut": args.reference_cut} if args.reference_cut else None
     ids = []
     for spec in args.policy:
         try:
             ids.append(operate(args.scenario, spec, strokes=args.strokes, db=args.db,
                                seed=args.seed, block=args.block,
                                progress=not args.no_progress, rig=args.rig,
-                               rig_name=args.rig_name))
+                               rig_name=args.rig_name,
+                               options=cut if is_adaptive(spec) else None))
         except (ValueError, FileNotFoundError) as exc:
             parser.error(str(exc))
         print(f"recorded {ids[-1]} in {args.db}")
