@@ -651,6 +651,11 @@ def test_cli_hands_the_adaptive_controllers_the_reference_cut(tmp_path, monkeypa
         main(argv + ["--reference-cut", "sometimes"])
     assert [is_adaptive(s) for s in ("gaslaw", "esac=runs/esac", "gaslaw-adaptive",
                                      "esac-adaptive=runs/esac")] == [False, False, True, True]
+    from agents.adaptive import REFERENCE_CUTS
+    from pneugym.operation.__main__ import build_parser
+
+    (action,) = [a for a in build_parser()._actions if a.dest == "reference_cut"]
+    assert tuple(action.choices) == REFERENCE_CUTS  # the command line's twin of the controllers'
 
 
 def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path):
