@@ -57,6 +57,8 @@ def _real(v: object) -> bool:
 
 def check_command(value: object, what: str = "command") -> float:
     """A valve command as the kernels take it: exactly 0 (cut off) or 1 (supply connected)."""
+    if type(value) in (int, float) and value in (0, 1):  # the common case, without ABC checks
+        return float(value)  # type: ignore[arg-type]
     ok = isinstance(value, (numbers.Real, np.bool_)) and not (
         isinstance(value, float) and math.isnan(value))
     if not ok or float(value) not in (0.0, 1.0):  # type: ignore[arg-type]
@@ -67,6 +69,8 @@ def check_command(value: object, what: str = "command") -> float:
 
 def check_duration(value: object, what: str = "duration_s", allow_zero: bool = False) -> float:
     """A simulated span [s]: finite, > 0 (or >= 0) and at most :data:`MAX_SPAN_S`."""
+    if type(value) is float and 0.0 < value <= MAX_SPAN_S:  # the common case (NaN fails it)
+        return value
     if not _real(value) or not (value >= 0 if allow_zero else value > 0):  # type: ignore[operator]
         raise ValueError(f"{what} = {value!r} is invalid: must be a finite number "
                          f"{'>= 0' if allow_zero else '> 0'} [s]")
@@ -490,12 +494,14 @@ class Plant:
         most :data:`MAX_STEP_RETRIES` times): the automatic substep comes from linear stability
         bounds, and sudden changes on some rigs (orifices much wider than the tube) need less."""
         snap = self.snapshot()
-        sound = self._state_is_physical()  # a state broken before the call is not retried
         for attempt in range(MAX_STEP_RETRIES + 1):
             try:
                 return call()
             except SimulationError as exc:
-                if not sound or self.dt_limited_by == "user" or attempt == MAX_STEP_RETRIES:
+                # a state broken before the call is not retried (judged only on failure: the
+                # check costs more than a 5 ms period's substeps)
+                if (self.dt_limited_by == "user" or attempt == MAX_STEP_RETRIES
+                        or not self._state_is_physical(*snap)):
                     raise
                 self.restore(snap)
                 self.dt_s *= 0.5
@@ -507,11 +513,11 @@ class Plant:
                               stacklevel=3)
         raise AssertionError("unreachable")
 
-    def _state_is_physical(self) -> bool:
-        """Finite state with positive masses and temperatures (what the kernels check)."""
+    def _state_is_physical(self, y: np.ndarray, d: np.ndarray) -> bool:
+        """Finite state ``y``, ``d`` with positive masses and temperatures (what the kernels
+        check)."""
         b, n = self._b, self.n_cells
-        y = self.y
-        return bool(np.isfinite(y).all() and np.isfinite(self.d).all() and (y[:n] > 0).all()
+        return bool(np.isfinite(y).all() and np.isfinite(d).all() and (y[:n] > 0).all()
                     and min(y[b + L.Y_MD], y[b + L.Y_ME], y[b + L.Y_TD], y[b + L.Y_TE]) > 0)
 
     def _check(self, status: int) -> None:
