@@ -41,10 +41,11 @@ def refined_rig(rig, factor):
                  "stability_limit_s": lim[lim_name], "stability_limited_by": lim_name}
 
 
-def stroke_metrics(rig):
+def stroke_metrics(rig, record_dt=1e-3):
     """Stroke time and wasted energies of one configuration: conventional (closed form),
     end-stroke cut-off, early mid-stroke cut-off (``T_CUT_MID``, piston stops mid-stroke) and a
-    later cut-off (``T_CUT_LATE``, valve closed mid-stroke, the piston still arrives)."""
+    later cut-off (``T_CUT_LATE``, valve closed mid-stroke, the piston still arrives). The cut
+    runs record every ``record_dt`` [s], which shortens substeps longer than it."""
     bar = round(rig.supply_pressure_gauge_pa / 1e5, 3)
     pl = Plant(rig)
     out = {"dt_s": pl.dt_s, "dt_limited_by": pl.dt_limited_by, "n_cells": pl.n_cells}
@@ -54,16 +55,16 @@ def stroke_metrics(rig):
     out["energy_conventional_j"] = pl.energy_wasted_j  # closed form (filled to supply, x = stroke)
 
     pl.reset()
-    pl.run(T_END_ACC, cut_on_arrival=True)
+    pl.run(T_END_ACC, cut_on_arrival=True, record_dt=record_dt)
     out["endcut"] = _after_cut(pl)
 
     pl.reset()
-    pl.run(T_END_ACC, schedule=[(0.0, 1), (T_CUT_MID, 0)])
+    pl.run(T_END_ACC, schedule=[(0.0, 1), (T_CUT_MID, 0)], record_dt=record_dt)
     out["midcut"] = _after_cut(pl)
 
     t_late = T_CUT_LATE.get(bar, 1.2)
     pl.reset()
-    pl.run(T_END_ACC, schedule=[(0.0, 1), (t_late, 0)])
+    pl.run(T_END_ACC, schedule=[(0.0, 1), (t_late, 0)], record_dt=record_dt)
     out["latecut"] = {**_after_cut(pl), "command_s": t_late}
     return out
 
@@ -155,6 +156,11 @@ def bench_accuracy(reps, quick):
         entry["errors_default_vs_extrapolated"] = compare(m_def, extrap)
         entry["errors_reference_vs_extrapolated"] = compare(m_ref, extrap)
         entry["stability_scan_default"] = stability_scan(rig)
+        # the FD line solved implicitly, at its own substep (recorded every 50 ms: a 1 ms grid
+        # would shorten its 5 ms substeps)
+        m_imp = stroke_metrics(rig.with_(solver={"line_scheme": "implicit"}), record_dt=0.05)
+        entry["implicit_line"] = m_imp
+        entry["errors_implicit_line_vs_reference"] = compare(m_imp, m_ref)
         res["by_pressure"][f"{bar}bar"] = entry
 
     # trade-off: alternative line grids and orifice linear zones, against the same reference
@@ -211,7 +217,9 @@ def report_accuracy(acc):
                 ("default vs ref(4x)", e["default"], e["errors_default_vs_reference"]),
                 ("ref(4x) vs ref(8x)", e["reference"], e["errors_reference_vs_reference8"]),
                 ("default vs extrapolated", e["default"], e["errors_default_vs_extrapolated"]),
-                ("ref(4x) vs extrapolated", e["reference"], e["errors_reference_vs_extrapolated"])):
+                ("ref(4x) vs extrapolated", e["reference"], e["errors_reference_vs_extrapolated"]),
+                ("implicit line vs ref(4x)", e["implicit_line"],
+                 e["errors_implicit_line_vs_reference"])):
             rows.append([k, label, g(m["arrival_time_s"], 6), pct(er["stroke_time_pct"]),
                          pct(er["energy_conventional_pct"]), pct(er["energy_endcut_pct"]),
                          pct(er["energy_midcut_pct"]), pct(er["energy_latecut_pct"]),

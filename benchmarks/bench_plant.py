@@ -115,7 +115,6 @@ def bench_rtf(reps):
         t_first0 = time.perf_counter()
         plant.advance(0.01, 1)
         first = time.perf_counter() - t_first0
-        plants[bar] = (plant, first)
 
         def adv(p=plant):
             p.advance(2.0, 1)
@@ -131,14 +130,30 @@ def bench_rtf(reps):
             for _ in range(400):
                 K.command_advance(p.y, p.P, p.d, p._work, 1.0, 0.005, False)
 
+        # the same rig with the FD line solved implicitly (SolverParams(line_scheme="implicit"))
+        imp = Plant(thesis_rig(bar).with_(solver={"line_scheme": "implicit"}))
+        imp.advance(0.01, 1)
+        plants[bar] = (plant, first, imp)
+
+        def imp_adv(p=imp):
+            p.advance(2.0, 1)
+
+        def imp_loop(p=imp):
+            for _ in range(400):
+                p.advance(0.005, 1)
+
         cases += [((bar, "advance"), adv, plant.reset), ((bar, "run"), run_rec, plant.reset),
                   ((bar, "loop"), control_loop, plant.reset),
-                  ((bar, "kernel"), kernel_loop, plant.reset)]
+                  ((bar, "kernel"), kernel_loop, plant.reset),
+                  ((bar, "implicit"), imp_adv, imp.reset),
+                  ((bar, "implicit loop"), imp_loop, imp.reset)]
     cpu = {}
     times = interleaved(cases, reps, cpu)
-    for bar, (plant, first) in plants.items():
+    for bar, (plant, first, imp) in plants.items():
         plant.reset()
         plant.advance(2.0, 1)
+        imp.reset()
+        imp.advance(2.0, 1)
         t_adv, t_run, t_ctl = times[(bar, "advance")], times[(bar, "run")], times[(bar, "loop")]
         n_sub = math.ceil(2.0 / plant.dt_s - 1e-9)
         res[f"{bar}bar"] = {
@@ -158,6 +173,16 @@ def bench_rtf(reps):
             # Plant.advance's 5 ms call against the jitted call alone, CPU time: its checks' cost
             "control_loop_over_kernel": float(np.median(cpu[(bar, "loop")]))
             / float(np.median(cpu[(bar, "kernel")])),
+            "implicit_line": {  # CPU time, timed round-robin with the explicit cases above
+                "dt_s": imp.dt_s, "dt_limited_by": imp.dt_limited_by,
+                "arrival_time_s": imp.arrival_time_s,
+                "rtf_advance": 2.0 / float(np.median(cpu[(bar, "implicit")])),
+                "rtf_control_loop_5ms": 2.0 / float(np.median(cpu[(bar, "implicit loop")])),
+                "advance_speedup_over_explicit": float(np.median(cpu[(bar, "advance")]))
+                / float(np.median(cpu[(bar, "implicit")])),
+                "loop_speedup_over_explicit": float(np.median(cpu[(bar, "loop")]))
+                / float(np.median(cpu[(bar, "implicit loop")])),
+            },
         }
     return res
 
@@ -183,6 +208,17 @@ def report_rtf(a):
                          f"a. Real-time factor, one plant, default configuration "
                          f"(goal RTF >= {GOAL_RTF:.0f}); medians of {a['2.5bar']['advance']['n']} repeats; (CPU): "
                          "this thread's CPU time, which does not count waiting for a core on a busy machine"))
+    rows = []
+    for k, e in a.items():
+        m = e["implicit_line"]
+        rows.append([k, g(m["dt_s"] * 1e6, 4), m["dt_limited_by"], g(m["rtf_advance"], 4),
+                     g(m["advance_speedup_over_explicit"], 3), g(m["rtf_control_loop_5ms"], 4),
+                     g(m["loop_speedup_over_explicit"], 3), g(m["arrival_time_s"], 6)])
+    out.append(fmt_table(["supply", "dt[us]", "dt limited by", "RTF advance (CPU)",
+                          "x explicit", "RTF 5ms-loop (CPU)", "x explicit", "arrival [s]"], rows,
+                         "a'. The same with the FD line solved implicitly "
+                         "(SolverParams(line_scheme='implicit')), CPU time, timed round-robin "
+                         "with the explicit line"))
     inproc = {k: e["first_call_in_process_s"] for k, e in a.items()}
     out.append("   first call in this process (cache load): "
                + ", ".join(f"{k}: {v:.3f} s" for k, v in inproc.items()))

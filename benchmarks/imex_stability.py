@@ -75,7 +75,7 @@ def _implicit_jacobian(plant, y, d):
     parts = [(port, [n - 1, b + L.Y_MD], n - 1, b + L.Y_MD)]
     if n > 1:
         parts.append((valve, [0], None, 0))
-    if P[L.P_LINE_MODEL] != 0.0 and n > 1:
+    if P[L.P_LINE_MODEL] == 1.0 and n > 1:
         parts += [(joint(j), [j, j + 1], j, j + 1) for j in range(n - 1)]
     for f, cols, out_row, in_row in parts:
         f0 = f(y)

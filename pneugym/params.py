@@ -206,6 +206,8 @@ class CylinderParams:
 
 #: the supply-line models (:attr:`LineParams.model`)
 LINE_MODELS = ("fd", "lumped")
+#: how the substep treats the FD line: explicit (the default) or solved implicitly whole
+LINE_SCHEMES = ("explicit", "implicit")
 #: the orifice laws (:attr:`ValveParams.flow_model`)
 ORIFICE_MODELS = ("thesis", "iso6358")
 
@@ -387,6 +389,7 @@ class SolverParams:
     dt_s: float | None = None
     safety: float = 0.9
     min_dt_s: float = 1e-7
+    line_scheme: str = "explicit"
 
     def __post_init__(self) -> None:
         _finite(self)
@@ -397,6 +400,8 @@ class SolverParams:
                    f"None or >= min_dt_s = {self.min_dt_s:g} s (a smaller substep takes hours per "
                    f"simulated second; µs given as s?)")
         _check(self, "safety", 0.0 < self.safety <= 1.0, "in (0, 1]")
+        _check(self, "line_scheme", self.line_scheme in LINE_SCHEMES,
+               " or ".join(repr(x) for x in LINE_SCHEMES))
 
 
 #: Lowest plausible supply [Pa gauge] (0.1 bar): below it the value is almost surely bar given as Pa.

@@ -31,6 +31,12 @@ CHAIN_H_LAMBDA = 40.0
 TWO_CELL_CFL_FACTOR = 0.5
 #: ... with the valve and port conductances in the bound too (see stability_limits)
 CHAIN_H_LAMBDA_ENDS = 60.0
+#: Longest automatic substep [s] with the implicit FD line (``SolverParams(line_scheme=
+#: "implicit")``), whose own stability sets none: on the thesis rig at 1.5 and 2.5 bar, stroke
+#: time and wasted energies (conventional, cut on arrival, mid- and late cut-off) lie within
+#: 0.28 % of the converged reference at 5 ms, 0.5 % at 6.5 ms, and the state goes non-physical
+#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``)
+IMPLICIT_LINE_MAX_DT_S = 5e-3
 
 
 #: Longest simulated span [s] of one call (a stroke lasts seconds; longer is a unit slip).
@@ -153,6 +159,8 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_TAU_TH] = e.heat_transfer_time_constant_s
     P[L.P_LAG] = e.sensor_lag_s
     P[L.P_LINE_MODEL] = 0.0 if ln.model == "fd" else 1.0
+    if implicit_fd_line(params):
+        P[L.P_LINE_MODEL] = 2.0
     P[L.P_NCELLS] = ln.n_cells
     P[L.P_DX] = ln.length_m / ln.n_cells
     P[L.P_LINE_A] = ln.area_m2
@@ -246,7 +254,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
                        / vol[i] for i in range(n))
         out["implicit orifice chain of the lumped line"] = min(CHAIN_H_LAMBDA / lam,
                                                                 CHAIN_H_LAMBDA_ENDS / lam_ends)
-    if ln.model == "fd":
+    if ln.model == "fd" and not implicit_fd_line(params):
         csound = math.sqrt(R * T)
         dx = ln.length_m / ln.n_cells
         # staggered grid, centred flux: |ω| <= 2 c / dx for |u| <= c (see the docstring). The
@@ -280,6 +288,12 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     return out
 
 
+def implicit_fd_line(params: RigParams) -> bool:
+    """Whether the substep solves the FD line implicitly (``SolverParams(line_scheme=
+    "implicit")`` on an FD line of more than one cell)."""
+    return params.solver.line_scheme == "implicit" and params.line.model == "fd" and params.line.n_cells > 1
+
+
 def choose_dt(params: RigParams) -> tuple[float, str]:
     """The substep [s] and the process that limits it; raises ``ValueError`` if unsteppable."""
     lim = stability_limits(params)
@@ -297,6 +311,8 @@ def choose_dt(params: RigParams) -> tuple[float, str]:
             f"this configuration cannot be stepped: the {name} limits the substep to {stable:.3g} s, "
             f"below SolverParams.min_dt_s = {s.min_dt_s:.3g} s (too small a volume or too fine a "
             f"line grid for its orifices); enlarge the volume, coarsen the line or lower min_dt_s")
+    if implicit_fd_line(params) and stable > IMPLICIT_LINE_MAX_DT_S:
+        return IMPLICIT_LINE_MAX_DT_S, "implicit line (accuracy)"
     return stable, name
 
 

@@ -14,7 +14,7 @@ from numba import njit
 
 from .cylinder import chamber_pressures
 from .layout import (
-    D_CMD, D_T, D_T_ARRIVE, NP, NR, NY, P_DT, P_NCELLS, P_R, P_T, R_CMD, R_MDOT, R_MIN, R_PD,
+    D_CMD, D_T, D_T_ARRIVE, ND, NP, NR, NY, P_DT, P_LINE_MODEL, P_NCELLS, P_R, P_T, R_CMD, R_MDOT, R_MIN, R_PD,
     R_PE, R_PPORT, R_PVALVE, R_S, R_SD, R_SE, R_SE_P, R_T, R_TD, R_TE, R_V, R_X, STATUS_OK, Y_MIN,
     Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
@@ -52,10 +52,42 @@ def record_row(y, P, d, out, q_in):
 
 def work_size(P):
     """Length of the work array that :func:`advance_ws` needs for parameters ``P``: three state
-    vectors (the substep's stages) and the ``n`` line pressures. Plain Python (called once per
-    plant)."""
+    vectors (the substep's stages), a backup of the state (:func:`split_substep`), the ``n``
+    line pressures and the implicit FD line's scratch. Plain Python (called once per plant)."""
     n = int(P[P_NCELLS])
-    return 3 * (2 * n - 1 + NY) + n
+    return 4 * (2 * n - 1 + NY) + ND + n + 5 * (n + 1) + 2 * (n - 1)
+
+
+#: with the implicit FD line, a substep that ends non-physical is taken again from its start in
+#: 2, 4, ... up to this many parts (the implicit tableau is not stiffly accurate: at substeps of
+#: several ms, the final combination of the stages can overshoot through a sudden closure)
+MAX_SPLIT = 16
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
+    """:func:`pneugym.physics.stepping.substep`; with the implicit FD line (``P_LINE_MODEL``
+    2), a substep that ends non-physical is restored (``yb``, ``db``: backups of ``y``, ``d``)
+    and taken again as 2, 4, ... :data:`MAX_SPLIT` equal ones. Returns the status."""
+    if P[P_LINE_MODEL] != 2.0:
+        return substep(y, P, d, h, k, y1, y2, p)
+    for i in range(y.shape[0]):
+        yb[i] = y[i]
+    for i in range(d.shape[0]):
+        db[i] = d[i]
+    st = substep(y, P, d, h, k, y1, y2, p)
+    m = 1
+    while st != STATUS_OK and m < MAX_SPLIT:
+        m *= 2
+        for i in range(y.shape[0]):
+            y[i] = yb[i]
+        for i in range(d.shape[0]):
+            d[i] = db[i]
+        for _ in range(m):
+            st = substep(y, P, d, h / m, k, y1, y2, p)
+            if st != STATUS_OK:
+                break
+    return st
 
 
 @njit(cache=True, error_model="numpy")
@@ -67,7 +99,8 @@ def advance(y, P, d, t_end, rec, rec_dt, stop_on_arrival):
     If ``stop_on_arrival``, returns as soon as the piston first reaches the extended end.
     Returns ``(status, rows_written)``.
     """
-    w = np.empty(3 * y.shape[0] + int(P[P_NCELLS]))
+    n = int(P[P_NCELLS])
+    w = np.empty(4 * y.shape[0] + ND + n + 5 * (n + 1) + 2 * (n - 1))
     return advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w)
 
 
@@ -76,11 +109,12 @@ def advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w):
     """:func:`advance` with a caller-owned work array ``w`` (length :func:`work_size`), so that a
     control loop allocates nothing."""
     ny = y.shape[0]
-    n = int(P[P_NCELLS])
     k = w[0:ny]
     y1 = w[ny:2 * ny]
     y2 = w[2 * ny:3 * ny]
-    p = w[3 * ny:3 * ny + n]
+    yb = w[3 * ny:4 * ny]
+    db = w[4 * ny:4 * ny + ND]
+    p = w[4 * ny + ND:]  # the line pressures, then the implicit FD line's scratch
     dt = P[P_DT]
     nrec = 0
     mrec = rec.shape[0]
@@ -98,7 +132,7 @@ def advance_ws(y, P, d, t_end, rec, rec_dt, stop_on_arrival, w):
         h = min(dt, t_end - t)
         if rec_dt > 0.0 and nrec < mrec:
             h = min(h, t_next - t)
-        st = substep(y, P, d, h, k, y1, y2, p)
+        st = split_substep(y, P, d, h, k, y1, y2, p, yb, db)
         if st != STATUS_OK or (stop_on_arrival and d[D_T_ARRIVE] >= 0.0):
             break
     if st == STATUS_OK and rec_dt > 0.0 and nrec < mrec and d[D_T] >= t_next - eps:

@@ -9,7 +9,10 @@ conserved to round-off. Pressures absolute [Pa], masses [kg].
 """
 from numba import njit
 
-from .layout import NP, P_CDA_LINE, P_OC, P_R, P_SQRT_T, P_T, Y_MD
+from .layout import (
+    NP, P_AV, P_CDA_LINE, P_DX, P_LINE_A, P_LINE_D, P_MU, P_OC, P_R, P_SQRT_T, P_T, Y_MD,
+)
+from .line import _art_visc, wall_friction
 from .orifice import flow_deriv_fwd
 
 #: Newton iterations at most in :func:`implicit_chain`
@@ -18,6 +21,12 @@ CHAIN_MAX_IT = 30
 #: largest flow of the chain: the convergence is quadratic, so the flows are then exact to
 #: round-off (the chain is cheap: a few cells)
 CHAIN_TOL = 1e-9
+#: Newton iterations at most, and the relative correction at which it stops, in
+#: :func:`implicit_fd_line`
+FD_MAX_IT = 30
+#: ... and the absolute correction [kg/s] that also ends it (flows near zero: a line at rest)
+FD_ATOL = 1e-10
+FD_TOL = 1e-6
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -128,3 +137,135 @@ def implicit_chain(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, qj, cp, dp
         if dmax <= CHAIN_TOL * scale:
             break
     return qv, qp
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cell_terms(qa, qb, p, dpdq, inv_a, c43, cq, RT):
+    """A line cell's part of the face momentum, ``G = A (p + p_av - τ) + F`` [N] (pressure
+    with artificial viscosity, convective flux ``F = q_c² / (ρ A)``, normal viscous stress
+    ``τ``), and its derivatives with respect to the cell's inflow ``qa`` and outflow ``qb``
+    [kg/s] through the cell's mass in an implicit stage (``dpdq`` = hg dp/dm [Pa s/kg]).
+    Returns ``(G, dG/dqa, dG/dqb, 1/ρ)``."""
+    ir = RT / p
+    qc = 0.5 * (qa + qb)
+    dq = qb - qa
+    flux = qc * qc * ir * inv_a
+    tau = c43 * dq * ir
+    av = _art_visc(dq, ir, inv_a, cq)
+    g = (p + av - tau) / inv_a + flux
+    # d/dp of each term (1/ρ = RT/p), times dp/dqa = dpdq (dp/dqb = -dpdq)
+    dgp = 1.0 / inv_a - (flux + (av - tau) / inv_a) / p
+    dflux = qc * ir * inv_a
+    dtau = c43 * ir / inv_a
+    dav = 0.0
+    if av != 0.0:
+        dav = 2.0 * av / dq / inv_a
+    return g, dgp * dpdq + dflux + dtau - dav, -dgp * dpdq + dflux - dtau + dav, ir
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
+    """The implicit stage equation of the FD line solved whole (``SolverParams(implicit_line=
+    True)``): valve, continuity and momentum of every cell and face, port.
+
+    Unknowns: the ``n + 1`` flows ``F`` [kg/s] (row 0 the valve flow, rows 1..n-1 the face flows
+    at the stage, row n the port flow). The cells hold ``z_i + hg (F_i - F_(i+1))``, the driving
+    chamber ``z_md + hg F_n``; the valve and port rows are the orifice laws at those pressures,
+    each face row ``F_r = z_q + hg mom_r`` with the whole momentum equation of
+    :func:`pneugym.physics.line.fd_momentum` (pressure, convective flux, viscous stress,
+    artificial viscosity, wall friction). Newton's method on a tridiagonal Jacobian (Thomas
+    algorithm), exact but for the wall friction's (:func:`_cell_terms`). Converged when the
+    correction is below ``CHAIN_TOL`` of the largest flow; a step that would leave a
+    non-positive mass is halved.
+
+    ``z``: the stage's starting state; on return its line cells, faces and driving-chamber mass
+    hold the stage state. ``dy[n..b-1]`` receives the faces' implicit rates ``mom_r``. ``s``:
+    scratch of length >= 5 (n + 1). Returns ``(qv, qp)``.
+    """
+    RT = P[P_R] * P[P_T]
+    sT = P[P_SQRT_T]
+    A = P[P_LINE_A]
+    inv_a = 1.0 / A
+    inv_dx = 1.0 / P[P_DX]
+    d_t = P[P_LINE_D]
+    mu = P[P_MU]
+    cq = P[P_AV]
+    c43 = (4.0 / 3.0) * mu * inv_a * inv_dx
+    fscale = n / (n - 1.0)
+    m1 = n + 1
+    F = s[0:m1]
+    cp = s[m1:2 * m1]
+    dp = s[2 * m1:3 * m1]
+    mass = s[3 * m1:4 * m1]
+    kk = s[4 * m1:5 * m1]
+    md0 = z[b + Y_MD]
+    F[0] = qv
+    for j in range(n - 1):
+        F[j + 1] = z[n + j]
+    F[n] = qp
+    for i in range(n):
+        kk[i] = RT / P[NP + i]
+    for _ in range(FD_MAX_IT):
+        for i in range(n):
+            mass[i] = z[i] + hg * (F[i] - F[i + 1])
+        # row 0: supply (reservoir) -> cell 0
+        p_l = kk[0] * mass[0]
+        f, fa, fb = signed_flow_deriv(ps, p_l, cda_v, sT, sT, P, P_OC)
+        diag = 1.0 - hg * fb * kk[0]
+        cp[0] = hg * fb * kk[0] / diag
+        dp[0] = (F[0] - f) / diag
+        scale = abs(F[0])
+        # cell 0's terms for the first face row
+        g_l, ga_l, gb_l, ir_l = _cell_terms(F[0], F[1], p_l, kk[0] * hg, inv_a, c43, cq, RT)
+        for r in range(1, n):
+            p_r = kk[r] * mass[r]
+            g_r, ga_r, gb_r, ir_r = _cell_terms(F[r], F[r + 1], p_r, kk[r] * hg, inv_a, c43,
+                                                cq, RT)
+            fr = fscale * wall_friction(F[r], 0.5 * (ir_l + ir_r), A, d_t, mu)
+            mom = (g_l - g_r) * inv_dx - fr
+            # friction's derivative: laminar exact, turbulent its secant doubled
+            dfr = 0.0
+            if F[r] != 0.0:
+                dfr = fr / F[r]
+                if abs(F[r]) * d_t * inv_a / mu > 2300.0:
+                    dfr *= 2.0
+            a_r = -hg * ga_l * inv_dx
+            diag = 1.0 - hg * ((gb_l - ga_r) * inv_dx - dfr) - a_r * cp[r - 1]
+            cp[r] = hg * gb_r * inv_dx / diag
+            dp[r] = (F[r] - z[n + r - 1] - hg * mom - a_r * dp[r - 1]) / diag
+            scale = max(scale, abs(F[r]))
+            p_l = p_r
+            g_l, gb_l, ga_l, ir_l = g_r, gb_r, ga_r, ir_r
+        # row n: cell n-1 -> driving chamber
+        f, fa, fb = signed_flow_deriv(p_l, kd * (md0 + hg * F[n]), cda_p, sT, sTd, P, P_OC)
+        a_r = -hg * fa * kk[n - 1]
+        diag = 1.0 + hg * (fa * kk[n - 1] - fb * kd) - a_r * cp[n - 1]
+        dp[n] = (F[n] - f - a_r * dp[n - 1]) / diag
+        scale = max(scale, abs(F[n]))
+        # back substitution: the corrections into dp
+        dmax = abs(dp[n])
+        for r in range(n - 1, -1, -1):
+            dp[r] -= cp[r] * dp[r + 1]
+            dmax = max(dmax, abs(dp[r]))
+        # damping: a volume with a positive mass keeps one
+        lam = 1.0
+        for _h in range(60):
+            ok = md0 + hg * (F[n] - lam * dp[n]) > 0.0 or md0 + hg * F[n] <= 0.0
+            for i in range(n):
+                m_new = z[i] + hg * ((F[i] - lam * dp[i]) - (F[i + 1] - lam * dp[i + 1]))
+                if m_new <= 0.0 < mass[i]:
+                    ok = False
+            if ok:
+                break
+            lam *= 0.5
+        for r in range(m1):
+            F[r] -= lam * dp[r]
+        if dmax <= FD_TOL * scale + FD_ATOL:
+            break
+    for i in range(n):
+        z[i] += hg * (F[i] - F[i + 1])
+    for j in range(n - 1):
+        dy[n + j] = (F[j + 1] - z[n + j]) / hg
+        z[n + j] = F[j + 1]
+    z[b + Y_MD] = md0 + hg * F[n]
+    return F[0], F[n]

@@ -50,7 +50,7 @@ P_CDA_LEAK_D = 29  # Cd * A of the leak drive -> atmosphere [m²]
 P_CDA_LEAK_P = 30  # Cd * A of the leak across the piston [m²]
 P_TAU_TH = 31      # thermal time constant of the chambers [s] (0 = isothermal)
 P_LAG = 32         # pressure-sensor time constant [s] (0 = ideal)
-P_LINE_MODEL = 33  # 0 = finite differences, 1 = lumped volumes
+P_LINE_MODEL = 33  # 0 = finite differences, 1 = lumped volumes, 2 = FD with implicit stages
 P_NCELLS = 34      # number of line cells
 P_DX = 35          # cell length [m]
 P_LINE_A = 36      # tube cross-section [m²]

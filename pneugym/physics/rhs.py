@@ -20,7 +20,7 @@ import math
 
 from numba import njit
 
-from .chain import implicit_chain
+from .chain import implicit_chain, implicit_fd_line
 from .cylinder import (
     chamber_dT, chamber_pressures, cushion_factor, enthalpy_flow, friction_force, piston_force,
 )
@@ -83,8 +83,19 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     cda_v = s * P[P_CDA_VALVE]
     cda_p = fd * P[P_CDA_PORT]
     q_imp = 0.0  # the implicit valve flow (0 when the valve flow is explicit)
-    chain = P[P_LINE_MODEL] != 0.0 and n > 1  # lumped line: the whole orifice chain is implicit
-    if hg > 0.0 and chain:
+    chain = P[P_LINE_MODEL] == 1.0 and n > 1  # lumped line: the whole orifice chain is implicit
+    fdi = P[P_LINE_MODEL] == 2.0  # FD line solved implicitly whole (set only with n > 1)
+    if hg > 0.0 and fdi:
+        # valve, cells, faces and port together; the faces' implicit rates into dy[n..b-1]
+        kd = R * Td / vd
+        ps = supply_pressure(P, tau) if s > 0.0 else P[P_PA]
+        q_in, q_port = implicit_fd_line(y, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv0, qp0,
+                                        p[n:], dy)
+        for i in range(n):
+            p[i] = y[i] * RT / P[NP + i]
+        pd = y[b + Y_MD] * R * Td / vd
+        q_imp = q_in
+    elif hg > 0.0 and chain:
         # valve, joints (guesses and result in dy[n..b-1]) and port together; p and the unused
         # face slots y[n..b-1] are the solver's scratch
         kd = R * Td / vd
@@ -144,6 +155,12 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
         fd_continuity(y, 0.0, 0.0, dy, n)
         fd_momentum(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV],
                     dy, n)
+    elif fdi:  # every term of the line is implicit; dy[n..b-1] holds the faces' momentum
+        if hg == 0.0:
+            fd_momentum(y, q_in, q_port, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU],
+                        P[P_AV], dy, n)
+        for i in range(n):
+            dy[i] = 0.0
     elif chain:  # every exchange of the cells is implicit; dy[n..b-1] holds the joints' flows
         for i in range(n):
             dy[i] = 0.0
@@ -200,12 +217,17 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
     dy[n - 1] -= q_port
     dy[b + Y_MD] += q_port
     dy[b + Y_MIN] += q_imp
-    if P[P_LINE_MODEL] != 0.0 and n > 1:  # the lumped line's joint flows
+    if P[P_LINE_MODEL] == 1.0 and n > 1:  # the lumped line's joint flows
         for j in range(n - 1):
             q = dy[n + j]
             dy[j] -= q
             dy[j + 1] += q
             dy[n + j] = 0.0
+    elif P[P_LINE_MODEL] == 2.0:  # the implicit FD line's continuity
+        for j in range(n - 1):
+            q = y[n + j]
+            dy[j] -= q
+            dy[j + 1] += q
     return q_in
 
 

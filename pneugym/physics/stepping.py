@@ -74,7 +74,17 @@ def substep(y, P, d, h, k, y1, y2, p):
     z[0] += c * qv1
     z[n - 1] -= c * qp1
     z[b + Y_MD] += c * qp1
-    chain = P[P_LINE_MODEL] != 0.0 and n > 1
+    chain = P[P_LINE_MODEL] == 1.0 and n > 1
+    fdi = P[P_LINE_MODEL] == 2.0
+    # the implicit FD line's scratch beyond the pressures and its solver's (``work_size``):
+    # the faces' stage-1 + stage-2 flows, then their stage-3 starting values
+    acc = n + 5 * (n + 1)
+    if fdi:  # faces: implicit momentum; cells: the stage-1 face flows, implicit too
+        for j in range(n - 1):
+            z[n + j] = y[n + j] + c * y1[n + j]
+            q = c * y[n + j]
+            z[j] -= q
+            z[j + 1] += q
     if chain:  # the lumped line's joints: implicit, their flows in the face slots of the rates
         for j in range(n - 1):
             q = c * y1[n + j]
@@ -89,14 +99,22 @@ def substep(y, P, d, h, k, y1, y2, p):
     if chain:  # the joints' implicit masses of stage 3 (p: scratch until stage_rhs)
         for j in range(n - 1):
             p[j] = c * y1[n + j] + c2 * k[n + j]
+    if fdi:  # stage 1's face flows are y's, stage 2's z's; rates M1 in y1, M2 in k
+        for j in range(n - 1):
+            p[j] = c * y[n + j] + c2 * z[n + j]
+            p[acc + j] = y[n + j] + z[n + j]
+            p[acc + n - 1 + j] = y[n + j] + c * y1[n + j] + c2 * k[n + j]
     for i in range(ny):
         y1[i] += k[i]
         z[i] = y[i] + 0.25 * h * y1[i]
     z[0] += c * qv1 + c2 * qv2
-    if chain:  # (the guess of stage 3 is stage 2's flows, already in k)
+    if chain or fdi:  # (the chain's guess of stage 3 is stage 2's flows, already in k)
         for j in range(n - 1):
             z[j] -= p[j]
             z[j + 1] += p[j]
+    if fdi:
+        for j in range(n - 1):
+            z[n + j] = p[acc + n - 1 + j]
     z[n - 1] -= c * qp1 + c2 * qp2
     z[b + Y_MD] += c * qp1 + c2 * qp2
     s, se = valve_opening(d, P, t + 0.5 * h)
@@ -117,6 +135,11 @@ def substep(y, P, d, h, k, y1, y2, p):
             y[j] -= q
             y[j + 1] += q
             y[n + j] = 0.0
+    if fdi:  # the faces' flows of the three stages (stage 3's in z) move the cells' mass
+        for j in range(n - 1):
+            q = h6 * (p[acc + j] + 4.0 * z[n + j])
+            y[j] -= q
+            y[j + 1] += q
 
     # valve: advance the ramp, record a completed closing, pop due commands
     t_new = t + h

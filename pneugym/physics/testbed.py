@@ -37,7 +37,7 @@ def line_rhs(y, P, bc, dy, p):
         p[i] = y[i] * RT / P[NP + i]
     q_in = _boundary(bc[0], bc[1], bc[2], p[0], True, sT, oc)
     q_out = _boundary(bc[3], bc[4], bc[5], p[n - 1], False, sT, oc)
-    if P[P_LINE_MODEL] == 0.0:
+    if P[P_LINE_MODEL] != 1.0:  # FD (explicit or implicit: the same right-hand side)
         fd_rhs(y, q_in, q_out, p, RT, P[P_LINE_A], P[P_DX], P[P_LINE_D], P[P_MU], P[P_AV], dy, n)
     else:
         lumped_rhs(p, q_in, q_out, P[P_CDA_LINE], sT, P, P_OC, dy, n)
