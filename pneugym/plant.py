@@ -289,9 +289,17 @@ def stability_limits(params: RigParams) -> dict[str, float]:
 
 
 def implicit_fd_line(params: RigParams) -> bool:
-    """Whether the substep solves the FD line implicitly (``SolverParams(line_scheme=
-    "implicit")`` on an FD line of more than one cell)."""
-    return params.solver.line_scheme == "implicit" and params.line.model == "fd" and params.line.n_cells > 1
+    """Whether the substep solves the FD line implicitly: ``SolverParams(line_scheme=
+    "implicit")`` on an FD line of more than one cell whose explicit substep the line itself
+    limits (its acoustic CFL bound or its wall friction) to less than
+    :data:`IMPLICIT_LINE_MAX_DT_S`. Elsewhere the explicit line is as fast or faster (the
+    implicit substep costs about three explicit ones), and it is kept."""
+    ln, sv = params.line, params.solver
+    if sv.line_scheme != "implicit" or ln.model != "fd" or ln.n_cells < 2:
+        return False
+    lim = stability_limits(params.with_(solver={"line_scheme": "explicit"}))
+    name = min(lim, key=lim.get)
+    return name in ("line CFL", "line friction") and lim[name] * sv.safety < IMPLICIT_LINE_MAX_DT_S
 
 
 def choose_dt(params: RigParams) -> tuple[float, str]:

@@ -46,8 +46,9 @@ def test_the_scheme_is_an_option_named_in_its_error():
     rig = _implicit(thesis_rig(2.5))
     assert "line CFL" not in stability_limits(rig)
     assert choose_dt(rig) == (IMPLICIT_LINE_MAX_DT_S, "implicit line (accuracy)")
-    # no effect where there is no FD line of several cells
-    for line in ({"model": "lumped"}, {"n_cells": 1}):
+    # no effect where there is no FD line of several cells, or where the line does not set
+    # the explicit substep below the implicit one's (a 6 m line: its CFL bound is 6 ms)
+    for line in ({"model": "lumped"}, {"n_cells": 1}, {"length_m": 6.0}):
         plain = thesis_rig(2.5).with_(line=line)
         assert choose_dt(_implicit(plain)) == choose_dt(plain)
         assert Plant(_implicit(plain)).P[L.P_LINE_MODEL] == Plant(plain).P[L.P_LINE_MODEL]

@@ -69,24 +69,26 @@ def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
     """:func:`pneugym.physics.stepping.substep`; with the implicit FD line (``P_LINE_MODEL``
     2), a substep that ends non-physical is restored (``yb``, ``db``: backups of ``y``, ``d``)
     and taken again as 2, 4, ... :data:`MAX_SPLIT` equal ones. Returns the status."""
-    if P[P_LINE_MODEL] != 2.0:
-        return substep(y, P, d, h, k, y1, y2, p)
-    for i in range(y.shape[0]):
-        yb[i] = y[i]
-    for i in range(d.shape[0]):
-        db[i] = d[i]
-    st = substep(y, P, d, h, k, y1, y2, p)
+    fdi = P[P_LINE_MODEL] == 2.0
+    if fdi:
+        for i in range(y.shape[0]):
+            yb[i] = y[i]
+        for i in range(d.shape[0]):
+            db[i] = d[i]
     m = 1
-    while st != STATUS_OK and m < MAX_SPLIT:
+    st = STATUS_OK
+    while True:
+        for _ in range(m):
+            st = substep(y, P, d, h / m, k, y1, y2, p)
+            if st != STATUS_OK:
+                break
+        if st == STATUS_OK or not fdi or m >= MAX_SPLIT:
+            break
         m *= 2
         for i in range(y.shape[0]):
             y[i] = yb[i]
         for i in range(d.shape[0]):
             d[i] = db[i]
-        for _ in range(m):
-            st = substep(y, P, d, h / m, k, y1, y2, p)
-            if st != STATUS_OK:
-                break
     return st
 
 

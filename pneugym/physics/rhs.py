@@ -55,7 +55,9 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     the valve flow stays explicit (it is then evaluated at the stage state). With the lumped line
     of more than one cell, valve, joints and port are solved together
     (:func:`pneugym.physics.chain.implicit_chain`; the joints' guesses and flows in
-    ``dy[n..b-1]``). ``hg = 0``: no implicit step, the flows at ``y``.
+    ``dy[n..b-1]``). With the implicit FD line (``P_LINE_MODEL`` 2) the whole line is solved
+    with them (:func:`pneugym.physics.chain.implicit_fd_line`; the faces' momentum in
+    ``dy[n..b-1]``, ``p[n:]`` its scratch). ``hg = 0``: no implicit step, the flows at ``y``.
 
     Then ``dy`` receives every other term at the stage state: the line without the implicit flows
     in the continuity of its end cells, the chambers without the port flow in the driving-chamber

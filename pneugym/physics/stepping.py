@@ -2,7 +2,7 @@
 
 Explicit part: SSP-RK3 (``c = 0, 1, 1/2``; weights ``1/6, 1/6, 2/3``) on everything but the
 stiff orifice flows. Implicit part: the valve and port flows (with the lumped line, its whole
-orifice chain), with the diagonally implicit tableau ``IMEX_A*`` below on the same abscissae
+orifice chain; with ``SolverParams(line_scheme="implicit")``, the whole FD line), with the diagonally implicit tableau ``IMEX_A*`` below on the same abscissae
 and weights; each stage's equation is solved exactly (:func:`pneugym.physics.rhs.stage_rhs`).
 Order 2 (3 for the explicit part alone), A- and L-stable implicit part; mass moves by the same
 flows on both sides, so it is conserved to round-off. The substep ``h`` [s] is at most
@@ -54,7 +54,8 @@ def substep(y, P, d, h, k, y1, y2, p):
     Order 2 (3 for the explicit part alone); mass moves between cells by the same flows on both
     sides, so it is conserved to round-off. ``k``, ``y1``, ``y2``: work arrays of the state's
     length (``y1`` receives the first two stages' explicit rates summed, ``k`` the second's and
-    then the third's, ``y2`` the stage state); ``p`` (n): scratch for the line pressures."""
+    then the third's, ``y2`` the stage state); ``p``: scratch, the line pressures first (n), then
+    (implicit FD line) its solver's and the faces' flows (:func:`pneugym.physics.advance.work_size`)."""
     t = d[D_T]
     ny = y.shape[0]
     n = int(P[P_NCELLS])
