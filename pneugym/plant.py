@@ -35,7 +35,8 @@ CHAIN_H_LAMBDA_ENDS = 60.0
 #: "implicit")``), whose own stability sets none: on the thesis rig at 1.5 and 2.5 bar, stroke
 #: time and wasted energies (conventional, cut on arrival, mid- and late cut-off) lie within
 #: 0.28 % of the converged reference at 5 ms, 0.5 % at 6.5 ms, and the state goes non-physical
-#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``)
+#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``). Off the thesis rig it is less accurate than
+#: the explicit line (``benchmarks/bench_line_scheme.py``, docs/plant.md)
 IMPLICIT_LINE_MAX_DT_S = 5e-3
 
 
@@ -159,7 +160,7 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_TAU_TH] = e.heat_transfer_time_constant_s
     P[L.P_LAG] = e.sensor_lag_s
     P[L.P_LINE_MODEL] = 0.0 if ln.model == "fd" else 1.0
-    if implicit_fd_line(params):
+    if uses_implicit_line(params):
         P[L.P_LINE_MODEL] = 2.0
     P[L.P_NCELLS] = ln.n_cells
     P[L.P_DX] = ln.length_m / ln.n_cells
@@ -254,7 +255,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
                        / vol[i] for i in range(n))
         out["implicit orifice chain of the lumped line"] = min(CHAIN_H_LAMBDA / lam,
                                                                 CHAIN_H_LAMBDA_ENDS / lam_ends)
-    if ln.model == "fd" and not implicit_fd_line(params):
+    if ln.model == "fd" and not uses_implicit_line(params):
         csound = math.sqrt(R * T)
         dx = ln.length_m / ln.n_cells
         # staggered grid, centred flux: |ω| <= 2 c / dx for |u| <= c (see the docstring). The
@@ -288,7 +289,7 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     return out
 
 
-def implicit_fd_line(params: RigParams) -> bool:
+def uses_implicit_line(params: RigParams) -> bool:
     """Whether the substep solves the FD line implicitly: ``SolverParams(line_scheme=
     "implicit")`` on an FD line of more than one cell whose explicit substep the line itself
     limits (its acoustic CFL bound or its wall friction) to less than
@@ -319,7 +320,7 @@ def choose_dt(params: RigParams) -> tuple[float, str]:
             f"this configuration cannot be stepped: the {name} limits the substep to {stable:.3g} s, "
             f"below SolverParams.min_dt_s = {s.min_dt_s:.3g} s (too small a volume or too fine a "
             f"line grid for its orifices); enlarge the volume, coarsen the line or lower min_dt_s")
-    if implicit_fd_line(params) and stable > IMPLICIT_LINE_MAX_DT_S:
+    if uses_implicit_line(params) and stable > IMPLICIT_LINE_MAX_DT_S:
         return IMPLICIT_LINE_MAX_DT_S, "implicit line (accuracy)"
     return stable, name
 

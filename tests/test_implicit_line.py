@@ -120,3 +120,28 @@ def test_random_rigs_and_command_sequences_keep_the_invariants(rig, schedule):
     assert np.all(pl.line_pressures_pa > 0.0)
     assert np.all(tr["x"] >= 0.0) and np.all(tr["x"] <= rig.cylinder.stroke_m * (1 + 1e-12))
     assert abs(pl.mass_balance_error_kg) <= 1e-9 * pl.total_air_mass_kg
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_implicit_residual_has_the_explicit_lines_momentum(seed):
+    """The implicit solve's face momentum, assembled from ``cell_momentum_terms``, equals
+    :func:`fd_momentum`'s to round-off on random states, compressing cells (artificial
+    viscosity) and flows up to sonic included: the two spellings of one equation cannot drift."""
+    from pneugym.physics.line import cell_momentum_terms, fd_momentum, wall_friction
+
+    rng = np.random.default_rng(seed)
+    n = 5
+    R, T, A, dx, d, mu, cq = 287.0, 293.15, 2e-5, 0.15, 0.005, 1.8e-5, 1.0
+    RT = R * T
+    p = rng.uniform(1.0e5, 6.0e5, n)
+    q = rng.uniform(-8e-3, 8e-3, n + 1)  # valve, faces, port
+    y = np.zeros(2 * n - 1)
+    y[n:] = q[1:n]
+    dy = np.zeros(2 * n - 1)
+    fd_momentum(y, q[0], q[n], p, RT, A, dx, d, mu, cq, dy, n)
+    c43 = (4.0 / 3.0) * mu / (A * dx)
+    g = [cell_momentum_terms(q[i], q[i + 1], p[i], 0.0, 1.0 / A, c43, cq, RT) for i in range(n)]
+    for r in range(1, n):
+        fr = n / (n - 1.0) * wall_friction(q[r], 0.5 * (g[r - 1][3] + g[r][3]), A, d, mu)
+        mom = (g[r - 1][0] - g[r][0]) / dx - fr
+        assert mom == pytest.approx(dy[n + r - 1], rel=1e-9, abs=1e-12 * A * 6e5 / dx)

@@ -12,7 +12,7 @@ from numba import njit
 from .layout import (
     NP, P_AV, P_CDA_LINE, P_DX, P_LINE_A, P_LINE_D, P_MU, P_OC, P_R, P_SQRT_T, P_T, Y_MD,
 )
-from .line import _art_visc, wall_friction
+from .line import cell_momentum_terms, wall_friction
 from .orifice import flow_deriv_fwd
 
 #: Newton iterations at most in :func:`implicit_chain`
@@ -21,12 +21,13 @@ CHAIN_MAX_IT = 30
 #: largest flow of the chain: the convergence is quadratic, so the flows are then exact to
 #: round-off (the chain is cheap: a few cells)
 CHAIN_TOL = 1e-9
-#: Newton iterations at most, and the relative correction at which it stops, in
-#: :func:`implicit_fd_line`
+#: Newton iterations at most in :func:`implicit_fd_line`
 FD_MAX_IT = 30
-#: ... and the absolute correction [kg/s] that also ends it (flows near zero: a line at rest)
-FD_ATOL = 1e-10
+#: :func:`implicit_fd_line` stops when its last correction is at most this fraction of the
+#: largest flow plus :data:`FD_ATOL`
 FD_TOL = 1e-6
+#: ... the absolute part [kg/s] (flows near zero: a line at rest)
+FD_ATOL = 1e-10
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -139,36 +140,12 @@ def implicit_chain(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, qj, cp, dp
     return qv, qp
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _cell_terms(qa, qb, p, dpdq, inv_a, c43, cq, RT):
-    """A line cell's part of the face momentum, ``G = A (p + p_av - τ) + F`` [N] (pressure
-    with artificial viscosity, convective flux ``F = q_c² / (ρ A)``, normal viscous stress
-    ``τ``), and its derivatives with respect to the cell's inflow ``qa`` and outflow ``qb``
-    [kg/s] through the cell's mass in an implicit stage (``dpdq`` = hg dp/dm [Pa s/kg]).
-    Returns ``(G, dG/dqa, dG/dqb, 1/ρ)``."""
-    ir = RT / p
-    qc = 0.5 * (qa + qb)
-    dq = qb - qa
-    flux = qc * qc * ir * inv_a
-    tau = c43 * dq * ir
-    av = _art_visc(dq, ir, inv_a, cq)
-    g = (p + av - tau) / inv_a + flux
-    # d/dp of each term (1/ρ = RT/p), times dp/dqa = dpdq (dp/dqb = -dpdq)
-    dgp = 1.0 / inv_a - (flux + (av - tau) / inv_a) / p
-    dflux = qc * ir * inv_a
-    dtau = c43 * ir / inv_a
-    dav = 0.0
-    if av != 0.0:
-        dav = 2.0 * av / dq / inv_a
-    return g, dgp * dpdq + dflux + dtau - dav, -dgp * dpdq + dflux - dtau + dav, ir
-
-
 # Compiled once, not inlined into the stage (as ``stage_rhs`` is not into the substep): the
 # kernels' cold compile took 65 s with it inlined, 54-56 s so, 36 s before it (2-core machine).
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
 def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
-    """The implicit stage equation of the FD line solved whole (``SolverParams(implicit_line=
-    True)``): valve, continuity and momentum of every cell and face, port.
+    """The implicit stage equation of the FD line solved whole (``SolverParams(line_scheme=
+    "implicit")``): valve, continuity and momentum of every cell and face, port.
 
     Unknowns: the ``n + 1`` flows ``F`` [kg/s] (row 0 the valve flow, rows 1..n-1 the face flows
     at the stage, row n the port flow). The cells hold ``z_i + hg (F_i - F_(i+1))``, the driving
@@ -176,8 +153,8 @@ def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
     each face row ``F_r = z_q + hg mom_r`` with the whole momentum equation of
     :func:`pneugym.physics.line.fd_momentum` (pressure, convective flux, viscous stress,
     artificial viscosity, wall friction). Newton's method on a tridiagonal Jacobian (Thomas
-    algorithm), exact but for the wall friction's (:func:`_cell_terms`). Converged when the
-    correction is below ``CHAIN_TOL`` of the largest flow; a step that would leave a
+    algorithm), exact but for the wall friction's (:func:`pneugym.physics.line.cell_momentum_terms`). Converged when the
+    correction is below ``FD_TOL`` of the largest flow plus ``FD_ATOL``; a step that would leave a
     non-positive mass is halved.
 
     ``z``: the stage's starting state; on return its line cells, faces and driving-chamber mass
@@ -218,10 +195,10 @@ def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
         dp[0] = (F[0] - f) / diag
         scale = abs(F[0])
         # cell 0's terms for the first face row
-        g_l, ga_l, gb_l, ir_l = _cell_terms(F[0], F[1], p_l, kk[0] * hg, inv_a, c43, cq, RT)
+        g_l, ga_l, gb_l, ir_l = cell_momentum_terms(F[0], F[1], p_l, kk[0] * hg, inv_a, c43, cq, RT)
         for r in range(1, n):
             p_r = kk[r] * mass[r]
-            g_r, ga_r, gb_r, ir_r = _cell_terms(F[r], F[r + 1], p_r, kk[r] * hg, inv_a, c43,
+            g_r, ga_r, gb_r, ir_r = cell_momentum_terms(F[r], F[r + 1], p_r, kk[r] * hg, inv_a, c43,
                                                 cq, RT)
             fr = fscale * wall_friction(F[r], 0.5 * (ir_l + ir_r), A, d_t, mu)
             mom = (g_l - g_r) * inv_dx - fr

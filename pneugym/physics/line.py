@@ -129,3 +129,29 @@ def lumped_rhs(p, q_in, q_out, cda, sqrt_T, c, o, dy, n):
             qb = flow_at(p[i], p[i + 1], cda, sqrt_T, sqrt_T, c, o)
         dy[i] = qa - qb
         qa = qb
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def cell_momentum_terms(qa, qb, p, dpdq, inv_a, c43, cq, RT):
+    """A line cell's part of the face momentum, ``G = A (p + p_av - τ) + F`` [N] (pressure
+    with artificial viscosity, convective flux ``F = q_c² / (ρ A)``, normal viscous stress
+    ``τ``), and its derivatives with respect to the cell's inflow ``qa`` and outflow ``qb``
+    [kg/s] through the cell's mass in an implicit stage (``dpdq`` = hg dp/dm [Pa s/kg]).
+    Returns ``(G, dG/dqa, dG/dqb, 1/ρ)``. The same terms as :func:`fd_momentum`, whose face
+    rate is ``(G_left - G_right) / dx`` less the wall friction (there summed in another order,
+    which the explicit line's results keep; their equality to round-off is a test)."""
+    ir = RT / p
+    qc = 0.5 * (qa + qb)
+    dq = qb - qa
+    flux = qc * qc * ir * inv_a
+    tau = c43 * dq * ir
+    av = _art_visc(dq, ir, inv_a, cq)
+    g = (p + av - tau) / inv_a + flux
+    # d/dp of each term (1/ρ = RT/p), times dp/dqa = dpdq (dp/dqb = -dpdq)
+    dgp = 1.0 / inv_a - (flux + (av - tau) / inv_a) / p
+    dflux = qc * ir * inv_a
+    dtau = c43 * ir / inv_a
+    dav = 0.0
+    if av != 0.0:
+        dav = 2.0 * av / dq / inv_a
+    return g, dgp * dpdq + dflux + dtau - dav, -dgp * dpdq + dflux - dtau + dav, ir
