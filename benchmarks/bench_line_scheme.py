@@ -8,7 +8,10 @@ For every rig-point: stroke time and the wasted energies of a cut on arrival and
 stroke with either scheme (its ratio is the speed-up). Writes ``line_scheme.json`` (with the
 configuration and versions) and ``line_scheme.png``.
 
-    python benchmarks/bench_line_scheme.py [--quick] [--dt-s 0.005] [--out DIR]
+    python benchmarks/bench_line_scheme.py [--quick] [--dt-s 0.005] [--draws N] [--out DIR]
+
+``--draws N``: N new draws of the rig family instead (seed stream ``--stream``, default 58:
+no training and no suite uses it), ``line_scheme_draws.json`` / ``.png``.
 """
 from __future__ import annotations
 
@@ -24,12 +27,14 @@ from pneugym import Plant, RigParams
 from pneugym.envs.family import apply_changes
 from pneugym.plant import choose_dt
 
-from agents.evaluation.suites import TRANSFER_POINTS, transfer_rigs
+from agents.evaluation.suites import TRANSFER_POINTS, held_out_draws, transfer_rigs
 
 QUANTITIES = ("stroke", "endcut", "cut60")
 T_MAX = 8.0  # [s] simulated at most per run
 CUT_AT = 0.6  # the cut-off at this fraction of the conventional stroke time
 GOAL_PCT = 0.5
+#: the seed stream of ``--draws`` (the transfer suite draws from stream 12, the cylinders' 13)
+DRAW_STREAM = 58
 
 
 def metrics(rig: RigParams, t_cut: float) -> dict[str, float]:
@@ -60,22 +65,25 @@ def cpu_stroke(rig: RigParams, reps: int) -> float:
     return sorted(times)[len(times) // 2]
 
 
-def rig_points(quick: bool):
+def rig_points(quick: bool, draws: int = 0, stream: int = DRAW_STREAM):
     """``(name, rig)`` of every transfer rig with an FD line of several cells at each point,
-    its ``solver.dt_s`` (a substep the suite fixes for a few rigs) left out."""
-    for name, changes in transfer_rigs().items():
+    its ``solver.dt_s`` (a substep the suite fixes for a few rigs) left out; with ``draws``,
+    of that many draws of the ``family`` preset's rigs from seed stream ``stream`` instead."""
+    rigs = transfer_rigs() if not draws else {
+        f"draw-{k + 1}": ch for k, ch in enumerate(held_out_draws("family", draws, stream, RigParams()))}
+    for name, changes in rigs.items():
         ch = tuple(c for c in changes if c[0] != "solver.dt_s")
         for bar, kg in TRANSFER_POINTS[1:3] if quick else TRANSFER_POINTS:
             rig = apply_changes(RigParams(supply_pressure_gauge_pa=bar * 1e5, load_mass_kg=kg), ch)
             if rig.line.model == "fd" and rig.line.n_cells > 1:
                 yield f"{name}@{bar:g}bar/{kg:g}kg", rig
-        if quick and name.startswith("heldout-2"):
+        if quick and name in ("heldout-2", "draw-2"):
             break
 
 
-def run(dt_s: float | None, quick: bool, reps: int) -> dict:
+def run(dt_s: float | None, quick: bool, reps: int, draws: int = 0, stream: int = DRAW_STREAM) -> dict:
     out = {}
-    for key, rig in rig_points(quick):
+    for key, rig in rig_points(quick, draws, stream):
         dt, _ = choose_dt(rig)
         ref = rig.with_(line={"n_cells": 4 * rig.line.n_cells}, solver={"dt_s": dt / 4})
         imp = rig.with_(solver={"line_scheme": "implicit"})
@@ -145,24 +153,30 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--dt-s", type=float, default=None,
                     help="the implicit line's substep [s] (default: automatic, 5 ms)")
     ap.add_argument("--repeats", type=int, default=None, help="timed strokes per rig-point")
+    ap.add_argument("--draws", type=int, default=0,
+                    help="instead of the transfer suite's rigs, this many new draws of the rig family "
+                         "(held out: seeds no training and no suite uses; writes line_scheme_draws.*)")
+    ap.add_argument("--stream", type=int, default=DRAW_STREAM, help="the draws' seed stream")
     a = ap.parse_args(argv)
     reps = a.repeats or (3 if a.quick else 7)
     warnings.simplefilter("ignore")  # rigs that stick by friction at some points warn
-    res = run(a.dt_s, a.quick, reps)
+    res = run(a.dt_s, a.quick, reps, a.draws, a.stream)
     s = summary(res)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"config": {"quick": a.quick, "dt_s": a.dt_s, "repeats": reps, "cut_at": CUT_AT,
+                      "draws": a.draws, "stream": a.stream if a.draws else None,
                       "goal_pct": GOAL_PCT, "points": TRANSFER_POINTS},
            "summary": s, "rig_points": res, "machine": machine_info(), "versions": versions()}
-    (out / "line_scheme.json").write_text(json.dumps(doc, indent=1, default=json_default))
-    plot(res, out / "line_scheme.png")
+    stem = "line_scheme_draws" if a.draws else "line_scheme"
+    (out / f"{stem}.json").write_text(json.dumps(doc, indent=1, default=json_default))
+    plot(res, out / f"{stem}.png")
     print(f"{s['rig_points']} rig-points; within {GOAL_PCT} %: explicit {s['explicit']['within_goal']}, "
           f"implicit {s['implicit']['within_goal']}; median max|err| explicit "
           f"{s['explicit']['median_max_abs_pct']:.3f} %, implicit {s['implicit']['median_max_abs_pct']:.3f} %; "
           f"speed-up median {s['speedup']['median']:.2f}x ({s['speedup']['min']:.2f}-"
           f"{s['speedup']['max']:.2f}x)")
-    print(f"wrote {out / 'line_scheme.json'} and line_scheme.png")
+    print(f"wrote {out / stem}.json and {stem}.png")
     return doc
 
 

@@ -14,7 +14,8 @@ from numba import njit
 
 from .cylinder import chamber_pressures
 from .layout import (
-    D_CMD, D_T, D_T_ARRIVE, ND, NP, NR, NY, P_DT, P_LINE_MODEL, P_NCELLS, P_R, P_T, R_CMD, R_MDOT, R_MIN, R_PD,
+    D_CMD, D_MODE, D_T, D_T_ARRIVE, MODE_MOVING, ND, NP, NR, NY, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN,
+    P_CUSH_RAMP, P_DT, P_LINE_MODEL, P_NCELLS, P_R, P_STROKE, P_T, R_CMD, R_MDOT, R_MIN, R_PD,
     R_PE, R_PPORT, R_PVALVE, R_S, R_SD, R_SE, R_SE_P, R_T, R_TD, R_TE, R_V, R_X, STATUS_OK, Y_MIN,
     Y_SD, Y_SE, Y_TD, Y_TE, Y_V, Y_X,
 )
@@ -63,12 +64,53 @@ def work_size(P):
 #: several ms, the final combination of the stages can overshoot through a sudden closure)
 MAX_SPLIT = 16
 
+#: with the implicit FD line, a substep in which the piston's mode changes (it sticks, breaks
+#: away, arrives, leaves an end), its velocity changes by as much as it was (it starts, stops
+#: or reverses) or it passes through a cushion's transition is taken again from its start in
+#: this many parts: the events are applied between substeps, so at the implicit line's
+#: substeps of up to 5 ms they would otherwise be placed only to within 5 ms, a velocity that
+#: crosses zero within a substep would take the sliding friction's kick of the wrong sign and
+#: miss the stick check, and a port or exhaust area that changes several-fold within a substep
+#: (a 2 mm transition crossed at 0.25 m/s in 8 ms) would be followed too coarsely
+EVENT_SPLIT = 8
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _crosses(a, b, lo, hi):
+    """True if the path from ``a`` to ``b`` meets the interval [``lo``, ``hi``]."""
+    return min(a, b) <= hi and max(a, b) >= lo
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def piston_event(y, P, d, yb, db):
+    """True if, between the backups ``yb``, ``db`` and the state ``y``, ``d``, the piston's mode
+    changed or, moving, its velocity changed by at least its magnitude at the start or its path
+    met a cushion's transition (:func:`pneugym.physics.cylinder.cushion_factor`)."""
+    if d[D_MODE] != db[D_MODE]:
+        return True
+    if db[D_MODE] != MODE_MOVING:
+        return False
+    b = 2 * int(P[P_NCELLS]) - 1
+    v0, v = yb[b + Y_V], y[b + Y_V]
+    if (v0 != 0.0 or v != 0.0) and abs(v - v0) >= abs(v0):
+        return True
+    length, half = P[P_CUSH_LEN], 0.5 * P[P_CUSH_RAMP]
+    if length <= 0.0:
+        return False
+    x0, x = yb[b + Y_X], y[b + Y_X]
+    if P[P_CUSH_FD] < 1.0 and _crosses(x0, x, length - half, length + half):
+        return True
+    end = P[P_STROKE] - length
+    return P[P_CUSH_FE] < 1.0 and _crosses(x0, x, end - half, end + half)
+
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
     """:func:`pneugym.physics.stepping.substep`; with the implicit FD line (``P_LINE_MODEL``
     2), a substep that ends non-physical is restored (``yb``, ``db``: backups of ``y``, ``d``)
-    and taken again as 2, 4, ... :data:`MAX_SPLIT` equal ones. Returns the status."""
+    and taken again as 2, 4, ... :data:`MAX_SPLIT` equal ones, and a substep with a piston
+    event (:func:`piston_event`) as :data:`EVENT_SPLIT` equal ones, up to and including the
+    first in which the mode changes (the caller goes on from the event). Returns the status."""
     fdi = P[P_LINE_MODEL] == 2.0
     if fdi:
         for i in range(y.shape[0]):
@@ -76,15 +118,23 @@ def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
         for i in range(d.shape[0]):
             db[i] = d[i]
     m = 1
+    ev = False  # taking a substep with a piston event in parts
     st = STATUS_OK
     while True:
         for _ in range(m):
+            mode = d[D_MODE]
             st = substep(y, P, d, h / m, k, y1, y2, p)
-            if st != STATUS_OK:
-                break
-        if st == STATUS_OK or not fdi or m >= MAX_SPLIT:
+            if st != STATUS_OK or (ev and d[D_MODE] != mode):
+                break  # (after the part with the mode change: the caller goes on from there)
+        if not fdi or m >= MAX_SPLIT:
             break
-        m *= 2
+        if st == STATUS_OK:
+            if m > 1 or not piston_event(y, P, d, yb, db):
+                break
+            m = EVENT_SPLIT
+            ev = True
+        else:
+            m *= 2
         for i in range(y.shape[0]):
             y[i] = yb[i]
         for i in range(d.shape[0]):

@@ -42,7 +42,7 @@ from .valve import supply_pressure, valve_opening
 # its array arguments are not reference-counted, and with the substep's ``fastmath`` flags LLVM
 # gives the substep the same results to the last bit.
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath={"contract"})
-def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
+def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0, vdir):
     """One stage of the IMEX substep: the implicit part, then the explicit right-hand side.
 
     The implicit part is the port flow from the last line cell into the driving chamber and the
@@ -63,6 +63,9 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     in the continuity of its end cells, the chambers without the port flow in the driving-chamber
     mass, the piston; the implicit flows enter the line momentum (end-cell fluxes) and the
     chamber energy equation. ``dy[b + Y_MIN]`` holds only an explicit valve flow.
+    ``vdir`` (+1, -1; 0: none): the substep's direction of motion, which the sliding friction
+    keeps opposing in a stage whose velocity has crossed zero (the implicit FD line's long
+    substeps; the reversal is then the stick event at the substep's end).
     Returns ``(q_valve_implicit, q_port, q_supply)`` [kg/s]: the implicit valve flow (0 when it is
     explicit), the port flow, the supply flow.
     """
@@ -191,7 +194,10 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0):
     # piston
     if mode == MODE_MOVING:
         f = piston_force(pd, pe, P)
-        ff = friction_force(v, f, P[P_FC], P[P_KV], P[P_STRIB_F], P[P_STRIB_V])
+        vf = v
+        if vdir != 0.0 and v * vdir <= 0.0:  # crossed zero within the substep: keep its direction
+            vf = vdir * max(abs(v), 1e-300)
+        ff = friction_force(vf, f, P[P_FC], P[P_KV], P[P_STRIB_F], P[P_STRIB_V])
         dy[b + Y_X] = v
         dy[b + Y_V] = (f - ff) / P[P_MASS]
     else:
@@ -214,7 +220,7 @@ def rhs_valve(tau, s, se, y, P, mode, dy, p):
     flows added back into ``dy``, so that ``dy`` is the whole right-hand side."""
     n = int(P[P_NCELLS])
     b = 2 * n - 1
-    q_imp, q_port, q_in = stage_rhs(tau, s, se, y, P, mode, dy, p, 0.0, 0.0, 0.0)
+    q_imp, q_port, q_in = stage_rhs(tau, s, se, y, P, mode, dy, p, 0.0, 0.0, 0.0, 0.0)
     dy[0] += q_imp
     dy[n - 1] -= q_port
     dy[b + Y_MD] += q_port

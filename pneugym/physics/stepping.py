@@ -14,7 +14,7 @@ from numba import njit
 
 from .events import piston_events
 from .layout import (
-    D_MODE, D_S, D_STATUS, D_T, D_T_CLOSED, D_T_S, D_TARGET, P_LINE_MODEL, P_NCELLS, P_RAMP,
+    D_MODE, D_S, D_STATUS, D_T, D_T_CLOSED, D_T_S, D_TARGET, MODE_MOVING, P_LINE_MODEL, P_NCELLS, P_RAMP,
     STATUS_NONFINITE, STATUS_NONPOSITIVE, STATUS_OK, Y_MD, Y_ME, Y_MIN, Y_TD, Y_TE, Y_V, Y_X,
 )
 from .rhs import stage_rhs
@@ -64,10 +64,18 @@ def substep(y, P, d, h, k, y1, y2, p):
     v_old = y[b + Y_V]
     x_old = y[b + Y_X]
     z = y2
+    fdi = P[P_LINE_MODEL] == 2.0
+    # with the implicit FD line (substeps up to 5 ms), the sliding friction keeps the substep's
+    # direction: a velocity that crosses zero within it would otherwise take a kick of the wrong
+    # sign, end the substep moving on and miss the stick check (a piston creeping on for
+    # seconds where it sticks with short substeps)
+    vdir = 0.0
+    if fdi and mode == MODE_MOVING and v_old != 0.0:
+        vdir = 1.0 if v_old > 0.0 else -1.0
 
     # stage 1 (c = 0): the state itself
     s, se = valve_opening(d, P, t)
-    qv1, qp1, _ = stage_rhs(t, s, se, y, P, mode, y1, p, 0.0, 0.0, 0.0)
+    qv1, qp1, _ = stage_rhs(t, s, se, y, P, mode, y1, p, 0.0, 0.0, 0.0, vdir)
     # stage 2 (c = 1): y + h k1 + h (a21 q1 + a22 q2)
     for i in range(ny):
         z[i] = y[i] + h * y1[i]
@@ -76,7 +84,6 @@ def substep(y, P, d, h, k, y1, y2, p):
     z[n - 1] -= c * qp1
     z[b + Y_MD] += c * qp1
     chain = P[P_LINE_MODEL] == 1.0 and n > 1
-    fdi = P[P_LINE_MODEL] == 2.0
     # the implicit FD line's scratch beyond the pressures and its solver's (``work_size``):
     # the faces' stage-1 + stage-2 flows, then their stage-3 starting values
     acc = n + 5 * (n + 1)
@@ -93,7 +100,7 @@ def substep(y, P, d, h, k, y1, y2, p):
             z[j + 1] += q
             k[n + j] = y1[n + j]  # the guess of stage 2
     s, se = valve_opening(d, P, t + h)
-    qv2, qp2, _ = stage_rhs(t + h, s, se, z, P, mode, k, p, h * IMEX_A22, qv1, qp1)
+    qv2, qp2, _ = stage_rhs(t + h, s, se, z, P, mode, k, p, h * IMEX_A22, qv1, qp1, vdir)
     # stage 3 (c = 1/2): y + h/4 (k1 + k2) + h (a31 q1 + a32 q2 + a33 q3)
     c = h * IMEX_A31
     c2 = h * IMEX_A32
@@ -119,7 +126,7 @@ def substep(y, P, d, h, k, y1, y2, p):
     z[n - 1] -= c * qp1 + c2 * qp2
     z[b + Y_MD] += c * qp1 + c2 * qp2
     s, se = valve_opening(d, P, t + 0.5 * h)
-    qv3, qp3, _ = stage_rhs(t + 0.5 * h, s, se, z, P, mode, k, p, h * IMEX_A33, qv2, qp2)
+    qv3, qp3, _ = stage_rhs(t + 0.5 * h, s, se, z, P, mode, k, p, h * IMEX_A33, qv2, qp2, vdir)
     # weights 1/6, 1/6, 2/3 for both parts
     h6 = h / 6.0
     for i in range(ny):
