@@ -35,9 +35,17 @@ CHAIN_H_LAMBDA_ENDS = 60.0
 #: "implicit")``), whose own stability sets none: on the thesis rig at 1.5 and 2.5 bar, stroke
 #: time and wasted energies (conventional, cut on arrival, mid- and late cut-off) lie within
 #: 0.28 % of the converged reference at 5 ms, 0.5 % at 6.5 ms, and the state goes non-physical
-#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``). Off the thesis rig it is less accurate than
-#: the explicit line (``benchmarks/bench_line_scheme.py``, docs/plant.md)
+#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``). Off the thesis rig: ``benchmarks/
+#: bench_line_scheme.py``, docs/plant.md
 IMPLICIT_LINE_MAX_DT_S = 5e-3
+
+#: The implicit FD line takes over only where its substep is at least this many times the
+#: explicit line's: on the thesis rig an implicit substep with its piston events costs about
+#: 3.4 explicit ones (7.7x fewer substeps for a 2.2-2.3x faster plant); where another process
+#: (an exhaust orifice, the piston's air spring) keeps the implicit substep short, the explicit
+#: line is as fast or faster (a rig whose exhaust orifice held it to 1.9 ms against the explicit
+#: line's 1.24 ms ran 0.5x as fast)
+IMPLICIT_LINE_MIN_GAIN = 4.0
 
 
 #: Longest simulated span [s] of one call (a stroke lasts seconds; longer is a unit slip).
@@ -292,15 +300,20 @@ def stability_limits(params: RigParams) -> dict[str, float]:
 def uses_implicit_line(params: RigParams) -> bool:
     """Whether the substep solves the FD line implicitly: ``SolverParams(line_scheme=
     "implicit")`` on an FD line of more than one cell whose explicit substep the line itself
-    limits (its acoustic CFL bound or its wall friction) to less than
-    :data:`IMPLICIT_LINE_MAX_DT_S`. Elsewhere the explicit line is as fast or faster (the
-    implicit substep costs about three explicit ones), and it is kept."""
+    limits (its acoustic CFL bound or its wall friction), where the implicit substep (at most
+    :data:`IMPLICIT_LINE_MAX_DT_S`, else the next process's bound) is at least
+    :data:`IMPLICIT_LINE_MIN_GAIN` times as long. Elsewhere the explicit line is as fast or
+    faster (the implicit substep costs about 3.4 explicit ones), and it is kept."""
     ln, sv = params.line, params.solver
     if sv.line_scheme != "implicit" or ln.model != "fd" or ln.n_cells < 2:
         return False
     lim = stability_limits(params.with_(solver={"line_scheme": "explicit"}))
     name = min(lim, key=lim.get)
-    return name in ("line CFL", "line friction") and lim[name] * sv.safety < IMPLICIT_LINE_MAX_DT_S
+    if name not in ("line CFL", "line friction"):
+        return False
+    rest = [v for k, v in lim.items() if k not in ("line CFL", "line friction")]
+    dt_implicit = min([IMPLICIT_LINE_MAX_DT_S] + [v * sv.safety for v in rest])
+    return dt_implicit >= IMPLICIT_LINE_MIN_GAIN * lim[name] * sv.safety
 
 
 def choose_dt(params: RigParams) -> tuple[float, str]:

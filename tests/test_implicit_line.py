@@ -54,6 +54,22 @@ def test_the_scheme_is_an_option_named_in_its_error():
         assert Plant(_implicit(plain)).P[L.P_LINE_MODEL] == Plant(plain).P[L.P_LINE_MODEL]
 
 
+def test_only_where_its_substep_is_four_times_the_explicit_ones():
+    """An exhaust orifice 6x the thesis rig's bounds the implicit substep at 2.2 ms, 3.4x the
+    explicit line's 0.65 ms: the implicit substep would cost more than it saves, and the
+    explicit line is kept; at 4x it bounds it at 3.3 ms, 5.1x, and the implicit line is used."""
+    from pneugym.plant import IMPLICIT_LINE_MIN_GAIN, uses_implicit_line
+
+    base = thesis_rig(2.5)
+    for factor, used in ((4.0, True), (6.0, False)):
+        plain = base.with_(valve={"exhaust_area_m2": factor * base.valve.exhaust_area_m2})
+        assert uses_implicit_line(_implicit(plain)) is used
+        if used:
+            assert choose_dt(_implicit(plain))[0] >= IMPLICIT_LINE_MIN_GAIN * choose_dt(plain)[0]
+        else:
+            assert choose_dt(_implicit(plain)) == choose_dt(plain)
+
+
 def test_rig_files_keep_the_scheme(tmp_path):
     rig = _implicit(thesis_rig(2.5))
     path = tmp_path / "rig.json"
