@@ -118,6 +118,16 @@ def summary(res: dict) -> dict:
                      "worst_max_abs_pct": max(e)}
     sp = [r["speedup"] for r in res.values()]
     s["speedup"] = {"median": med(sp), "min": min(sp), "max": max(sp)}
+    # where the implicit line is used (elsewhere both runs are the explicit line)
+    used = [r for r in res.values() if r["dt_implicit_s"] != r["dt_explicit_s"]]
+    s["where_used"] = {"rig_points": len(used)}
+    if used:
+        for scheme in ("explicit", "implicit"):
+            e = [r["max_abs_pct"][scheme] for r in used]
+            s["where_used"][scheme] = {"within_goal": sum(x <= GOAL_PCT for x in e),
+                                       "median_max_abs_pct": med(e)}
+        sp = [r["speedup"] for r in used]
+        s["where_used"]["speedup"] = {"median": med(sp), "min": min(sp), "max": max(sp)}
     return s
 
 
@@ -176,6 +186,13 @@ def main(argv: list[str] | None = None) -> dict:
           f"{s['explicit']['median_max_abs_pct']:.3f} %, implicit {s['implicit']['median_max_abs_pct']:.3f} %; "
           f"speed-up median {s['speedup']['median']:.2f}x ({s['speedup']['min']:.2f}-"
           f"{s['speedup']['max']:.2f}x)")
+    u = s["where_used"]
+    if u["rig_points"]:
+        print(f"where the implicit line is used ({u['rig_points']} rig-points): within {GOAL_PCT} %: "
+              f"explicit {u['explicit']['within_goal']}, implicit {u['implicit']['within_goal']}; median "
+              f"max|err| explicit {u['explicit']['median_max_abs_pct']:.3f} %, implicit "
+              f"{u['implicit']['median_max_abs_pct']:.3f} %; speed-up median {u['speedup']['median']:.2f}x "
+              f"({u['speedup']['min']:.2f}-{u['speedup']['max']:.2f}x)")
     print(f"wrote {out / stem}.json and {stem}.png")
     return doc
 

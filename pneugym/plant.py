@@ -35,7 +35,8 @@ CHAIN_H_LAMBDA_ENDS = 60.0
 #: "implicit")``), whose own stability sets none: on the thesis rig at 1.5 and 2.5 bar, stroke
 #: time and wasted energies (conventional, cut on arrival, mid- and late cut-off) lie within
 #: 0.28 % of the converged reference at 5 ms, 0.5 % at 6.5 ms, and the state goes non-physical
-#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``). Off the thesis rig: ``benchmarks/
+#: from 6.5-7 ms (``benchmarks/bench_accuracy.py``; the scan that chose it, before the piston's
+#: events were taken in parts: with them 0.16 % at 5 ms). Off the thesis rig: ``benchmarks/
 #: bench_line_scheme.py``, docs/plant.md
 IMPLICIT_LINE_MAX_DT_S = 5e-3
 
@@ -46,6 +47,9 @@ IMPLICIT_LINE_MAX_DT_S = 5e-3
 #: line is as fast or faster (a rig whose exhaust orifice held it to 1.9 ms against the explicit
 #: line's 1.24 ms ran 0.5x as fast)
 IMPLICIT_LINE_MIN_GAIN = 4.0
+
+#: the explicit substep's limits that the implicit FD line removes (:func:`stability_limits`)
+LINE_LIMITS = ("line CFL", "line friction")
 
 
 #: Longest simulated span [s] of one call (a stroke lasts seconds; longer is a unit slip).
@@ -309,9 +313,9 @@ def uses_implicit_line(params: RigParams) -> bool:
         return False
     lim = stability_limits(params.with_(solver={"line_scheme": "explicit"}))
     name = min(lim, key=lim.get)
-    if name not in ("line CFL", "line friction"):
+    if name not in LINE_LIMITS:
         return False
-    rest = [v for k, v in lim.items() if k not in ("line CFL", "line friction")]
+    rest = [v for k, v in lim.items() if k not in LINE_LIMITS]
     dt_implicit = min([IMPLICIT_LINE_MAX_DT_S] + [v * sv.safety for v in rest])
     return dt_implicit >= IMPLICIT_LINE_MIN_GAIN * lim[name] * sv.safety
 

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .cylinder import chamber_pressures
+from .cylinder import chamber_pressures, cushion_factor
 from .layout import (
     D_CMD, D_MODE, D_T, D_T_ARRIVE, MODE_MOVING, ND, NP, NR, NY, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN,
     P_CUSH_RAMP, P_DT, P_LINE_MODEL, P_NCELLS, P_R, P_STROKE, P_T, R_CMD, R_MDOT, R_MIN, R_PD,
@@ -76,16 +76,10 @@ EVENT_SPLIT = 8
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _crosses(a, b, lo, hi):
-    """True if the path from ``a`` to ``b`` meets the interval [``lo``, ``hi``]."""
-    return min(a, b) <= hi and max(a, b) >= lo
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def piston_event(y, P, d, yb, db):
     """True if, between the backups ``yb``, ``db`` and the state ``y``, ``d``, the piston's mode
-    changed or, moving, its velocity changed by at least its magnitude at the start or its path
-    met a cushion's transition (:func:`pneugym.physics.cylinder.cushion_factor`)."""
+    changed or, moving, its velocity changed by at least its magnitude at the start or a
+    cushion's area factor (:func:`pneugym.physics.cylinder.cushion_factor`) changed."""
     if d[D_MODE] != db[D_MODE]:
         return True
     if db[D_MODE] != MODE_MOVING:
@@ -94,14 +88,13 @@ def piston_event(y, P, d, yb, db):
     v0, v = yb[b + Y_V], y[b + Y_V]
     if (v0 != 0.0 or v != 0.0) and abs(v - v0) >= abs(v0):
         return True
-    length, half = P[P_CUSH_LEN], 0.5 * P[P_CUSH_RAMP]
-    if length <= 0.0:
-        return False
     x0, x = yb[b + Y_X], y[b + Y_X]
-    if P[P_CUSH_FD] < 1.0 and _crosses(x0, x, length - half, length + half):
+    length, ramp, stroke = P[P_CUSH_LEN], P[P_CUSH_RAMP], P[P_STROKE]
+    fd = P[P_CUSH_FD]
+    if cushion_factor(x0, length, fd, ramp) != cushion_factor(x, length, fd, ramp):
         return True
-    end = P[P_STROKE] - length
-    return P[P_CUSH_FE] < 1.0 and _crosses(x0, x, end - half, end + half)
+    fe = P[P_CUSH_FE]
+    return cushion_factor(stroke - x0, length, fe, ramp) != cushion_factor(stroke - x, length, fe, ramp)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -111,12 +104,12 @@ def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
     and taken again as 2, 4, ... :data:`MAX_SPLIT` equal ones, and a substep with a piston
     event (:func:`piston_event`) as :data:`EVENT_SPLIT` equal ones, up to and including the
     first in which the mode changes (the caller goes on from the event). Returns the status."""
-    fdi = P[P_LINE_MODEL] == 2.0
-    if fdi:
-        for i in range(y.shape[0]):
-            yb[i] = y[i]
-        for i in range(d.shape[0]):
-            db[i] = d[i]
+    if P[P_LINE_MODEL] != 2.0:  # the explicit and lumped lines: the substep as it is
+        return substep(y, P, d, h, k, y1, y2, p)
+    for i in range(y.shape[0]):
+        yb[i] = y[i]
+    for i in range(d.shape[0]):
+        db[i] = d[i]
     m = 1
     ev = False  # taking a substep with a piston event in parts
     st = STATUS_OK
@@ -126,7 +119,7 @@ def split_substep(y, P, d, h, k, y1, y2, p, yb, db):
             st = substep(y, P, d, h / m, k, y1, y2, p)
             if st != STATUS_OK or (ev and d[D_MODE] != mode):
                 break  # (after the part with the mode change: the caller goes on from there)
-        if not fdi or m >= MAX_SPLIT:
+        if m >= MAX_SPLIT:
             break
         if st == STATUS_OK:
             if m > 1 or not piston_event(y, P, d, yb, db):

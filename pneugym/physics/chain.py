@@ -153,9 +153,10 @@ def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
     each face row ``F_r = z_q + hg mom_r`` with the whole momentum equation of
     :func:`pneugym.physics.line.fd_momentum` (pressure, convective flux, viscous stress,
     artificial viscosity, wall friction). Newton's method on a tridiagonal Jacobian (Thomas
-    algorithm), exact but for the wall friction's (:func:`pneugym.physics.line.cell_momentum_terms`). Converged when the
-    correction is below ``FD_TOL`` of the largest flow plus ``FD_ATOL``; a step that would leave a
-    non-positive mass is halved.
+    algorithm), exact but for the wall friction's
+    (:func:`pneugym.physics.line.cell_momentum_terms`). Converged when the correction is below
+    ``FD_TOL`` of the largest flow plus ``FD_ATOL``; a step that would leave a non-positive mass
+    is halved.
 
     ``z``: the stage's starting state; on return its line cells, faces and driving-chamber mass
     hold the stage state. ``dy[n..b-1]`` receives the faces' implicit rates ``mom_r``. ``s``:
@@ -198,8 +199,8 @@ def implicit_fd_line(z, P, n, b, hg, ps, cda_v, cda_p, kd, sTd, qv, qp, s, dy):
         g_l, ga_l, gb_l, ir_l = cell_momentum_terms(F[0], F[1], p_l, kk[0] * hg, inv_a, c43, cq, RT)
         for r in range(1, n):
             p_r = kk[r] * mass[r]
-            g_r, ga_r, gb_r, ir_r = cell_momentum_terms(F[r], F[r + 1], p_r, kk[r] * hg, inv_a, c43,
-                                                cq, RT)
+            g_r, ga_r, gb_r, ir_r = cell_momentum_terms(F[r], F[r + 1], p_r, kk[r] * hg, inv_a,
+                                                        c43, cq, RT)
             fr = fscale * wall_friction(F[r], 0.5 * (ir_l + ir_r), A, d_t, mu)
             mom = (g_l - g_r) * inv_dx - fr
             # friction's derivative: laminar exact, turbulent its secant doubled

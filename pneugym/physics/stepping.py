@@ -2,8 +2,8 @@
 
 Explicit part: SSP-RK3 (``c = 0, 1, 1/2``; weights ``1/6, 1/6, 2/3``) on everything but the
 stiff orifice flows. Implicit part: the valve and port flows (with the lumped line, its whole
-orifice chain; with ``SolverParams(line_scheme="implicit")``, the whole FD line), with the diagonally implicit tableau ``IMEX_A*`` below on the same abscissae
-and weights; each stage's equation is solved exactly (:func:`pneugym.physics.rhs.stage_rhs`).
+orifice chain; with ``SolverParams(line_scheme="implicit")``, the whole FD line), with the
+diagonally implicit tableau ``IMEX_A*`` below on the same abscissae and weights; each stage's equation is solved exactly (:func:`pneugym.physics.rhs.stage_rhs`).
 Order 2 (3 for the explicit part alone), A- and L-stable implicit part; mass moves by the same
 flows on both sides, so it is conserved to round-off. The substep ``h`` [s] is at most
 ``P[P_DT]``, chosen by :func:`pneugym.plant.choose_dt` from the explicit part's stability limits.
@@ -14,8 +14,8 @@ from numba import njit
 
 from .events import piston_events
 from .layout import (
-    D_MODE, D_S, D_STATUS, D_T, D_T_CLOSED, D_T_S, D_TARGET, MODE_MOVING, P_LINE_MODEL, P_NCELLS, P_RAMP,
-    STATUS_NONFINITE, STATUS_NONPOSITIVE, STATUS_OK, Y_MD, Y_ME, Y_MIN, Y_TD, Y_TE, Y_V, Y_X,
+    D_MODE, D_S, D_STATUS, D_T, D_T_CLOSED, D_T_S, D_TARGET, MODE_MOVING, P_LINE_MODEL, P_NCELLS,
+    P_RAMP, STATUS_NONFINITE, STATUS_NONPOSITIVE, STATUS_OK, Y_MD, Y_ME, Y_MIN, Y_TD, Y_TE, Y_V, Y_X,
 )
 from .rhs import stage_rhs
 from .valve import pop_due_commands, spool_position, valve_opening
@@ -55,7 +55,8 @@ def substep(y, P, d, h, k, y1, y2, p):
     sides, so it is conserved to round-off. ``k``, ``y1``, ``y2``: work arrays of the state's
     length (``y1`` receives the first two stages' explicit rates summed, ``k`` the second's and
     then the third's, ``y2`` the stage state); ``p``: scratch, the line pressures first (n), then
-    (implicit FD line) its solver's and the faces' flows (:func:`pneugym.physics.advance.work_size`)."""
+    (implicit FD line) its solver's and the faces' flows
+    (:func:`pneugym.physics.advance.work_size`)."""
     t = d[D_T]
     ny = y.shape[0]
     n = int(P[P_NCELLS])
