@@ -405,7 +405,9 @@ class Discrepancy:
                 p = Problem(self.fit_runs_, fit_bases, self.sigma_, params)
                 typical = [cand.typical.get(q.name, q.draw(rng)) for q in cand.params]
                 firsts = [np.concatenate([cal_vals, typical]), np.concatenate([json_vals, typical])]
-                st = self._starts(p, firsts, [nom, cand.params], rng)
+                st = self._starts(p, firsts, [nom, cand.params], rng,
+                                  guard=null_start(cal_vals, cand.params, typical))
+                bar.total += len(st) - self.n_starts
                 slices.append(slice(len(jobs), len(jobs) + len(st)))
                 jobs += [Job(self.fit_runs_, fit_bases, self.sigma_, params, s, self.max_nfev) for s in st]
                 problems.append(p)
@@ -490,10 +492,13 @@ class Discrepancy:
         return order[len(order) // 2][0].name
 
     def _starts(self, prob: Problem, firsts: list[np.ndarray], groups: list[tuple[FitParam, ...]],
-                rng: np.random.Generator) -> list[np.ndarray]:
+                rng: np.random.Generator, guard: np.ndarray | None = None) -> list[np.ndarray]:
         """``n_starts`` start points: the given ones plus random ones (nominal part jittered
         by a few percent, effect part drawn from its plausible range), screened by one
-        simulation each; the best ``n_starts`` by SSR."""
+        simulation each; the best ``n_starts`` by SSR. With ``guard`` (a candidate's effect at
+        its null on the calibrated model, :func:`null_start`), that point is added as one more
+        start where every chosen one begins with a larger SSR: least squares never raises the
+        SSR of its start, so the candidate's fit cannot end worse than the model without it."""
         pts = [np.asarray(f, float) for f in firsts]
         nom = groups[0]
         while len(pts) < self.n_probe:
@@ -502,14 +507,19 @@ class Discrepancy:
             v[:len(nom)] *= np.exp(rng.normal(0.0, 0.03, len(nom)))
             v[len(nom):] = [q.draw(rng) for q in prob.params[len(nom):]]
             pts.append(v)
-        if len(pts) <= self.n_starts:
+        if len(pts) <= self.n_starts and guard is None:
             return pts
-        cost = []
-        for v in pts:
+
+        def ssr(v: np.ndarray) -> float:
             r = prob.residuals(np.array([q.to_u(x) for q, x in zip(prob.params, v)]))
-            cost.append(float(r @ r))
-        order = np.argsort(cost, kind="stable")
-        return [pts[i] for i in order[:self.n_starts]]
+            return float(r @ r)
+
+        cost = [ssr(v) for v in pts]
+        order = np.argsort(cost, kind="stable")[:self.n_starts]
+        chosen = [pts[i] for i in order]
+        if guard is not None and min(cost[i] for i in order) > ssr(guard):
+            chosen.append(np.asarray(guard, float))
+        return chosen
 
     def _split(self, segs) -> tuple[list[np.ndarray], list[np.ndarray]]:
         hold = {r.name for r in self.holdout_runs_}
@@ -872,6 +882,17 @@ def _for_run(run: MeasuredRun, fn, *args):
         raise ValueError(f"{run_label(run)}: {exc}") from exc
 
 
+def null_start(nominal: np.ndarray, params: Sequence[FitParam], typical: Sequence[float]
+               ) -> np.ndarray | None:
+    """The start of a candidate's fit at the model without it: the calibrated ``nominal``
+    values, every magnitude parameter at its null, shape parameters at ``typical``; ``None``
+    where a null lies outside its parameter's bounds (a heat-transfer time constant of 0)."""
+    if any(q.null is not None and not q.lo <= q.null <= q.hi for q in params):
+        return None
+    return np.concatenate([nominal, [q.null if q.null is not None else t
+                                     for q, t in zip(params, typical)]])
+
+
 def z_score(value: float, null: float, se: float) -> float:
     """``|value - null| / se``; with ``se = 0`` (an exact fit) infinite unless ``value`` is the
     null itself (then 0: an effect fitted to nothing is not away from its null)."""
@@ -886,6 +907,8 @@ def _ssr(segs: Sequence[np.ndarray]) -> float:
 
 
 class _NoBar:
+    total = 0
+
     def update(self, n: int = 1) -> None: ...
 
     def set_description(self, s: str) -> None: ...
