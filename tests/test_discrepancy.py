@@ -404,8 +404,8 @@ def test_no_candidate_ends_worse_than_the_model_without_it(leak_case):
     calibrated model's SSR (every screened start began worse; on rigs of another form up to 21
     times): a candidate that cannot fit is then judged as if it made things worse."""
     _, _, _, d, _ = leak_case
-    guarded = [c for c in d.candidates_ if all(q.null is None or q.lo <= q.null <= q.hi
-                                                for q in CANDIDATES[c.name].params)]
+    guarded = [c for c in d.candidates_ if null_start(np.zeros(0), CANDIDATES[c.name].params,
+                                                      [1.0] * len(CANDIDATES[c.name].params)) is not None]
     assert "stribeck_friction" in {c.name for c in guarded}
     for c in guarded:
         assert c.ssr_fit <= c.ssr0_fit * (1 + 1e-9), (c.name, c.ssr_fit / c.ssr0_fit)
