@@ -47,6 +47,7 @@ from pneugym.data import thesis_protocol  # noqa: E402
 from pneugym.discrepancy import CANDIDATES, Discrepancy  # noqa: E402
 from pneugym.discrepancy.cases import FORM_RANGES, FORMS, PERTURB, RANGES, make_case  # noqa: E402
 from pneugym.discrepancy.expansion import expansion_index  # noqa: E402
+from pneugym.discrepancy.followup import simulate_plans  # noqa: E402
 from pneugym.discrepancy.friction import FrictionDiscrepancy  # noqa: E402
 from pneugym.parallel import add_arguments as add_parallel_arguments, run_tasks  # noqa: E402
 from pneugym.params import LINE_MODELS, ORIFICE_MODELS  # noqa: E402
@@ -57,12 +58,30 @@ LABELS = EFFECTS + ("none", "ambiguous")
 
 
 def run_case(args) -> dict:
-    """One case through the workflow (a process of its own with ``--workers``)."""
-    effect, seed, form, kw = args
+    """One case through the workflow (a process of its own with ``--workers``). With a fifth
+    item ``True`` (``--follow-up``), where the answer suggests an experiment (``none`` with the
+    evidence short, or ``ambiguous``) its planned runs are made on the same true rig and the
+    workflow runs again on all the runs: the row is the second answer, ``first_round`` the first."""
+    effect, seed, form, kw, *rest = args
     known, truth, runs = make_case(effect, seed, form)
     t0 = time.perf_counter()
     d = Discrepancy(**kw).fit(runs)
-    wall = time.perf_counter() - t0
+    row = case_row(d, effect, seed, form, truth, time.perf_counter() - t0)
+    plans = d.suggested_runs() if rest and rest[0] else []
+    if plans:
+        extra = simulate_plans(plans, truth, known, seed=seed + 100)
+        t0 = time.perf_counter()
+        d2 = Discrepancy(**kw).fit(runs + extra)
+        first = {k: row[k] for k in ("named", "ambiguous", "gap_after", "gap_reduction",
+                                     "gap_reduction_vs_calibrated", "noise_floor", "candidates", "wall_s")}
+        row = case_row(d2, effect, seed, form, truth, time.perf_counter() - t0)
+        row["first_round"] = first
+        row["follow_up"] = [p.to_dict() for p in plans]
+    return row
+
+
+def case_row(d: Discrepancy, effect: str, seed: int, form: str, truth, wall: float) -> dict:
+    """What the matrix keeps of one fitted case."""
     cal = d.gaps_["calibrated"]["all"]["overall"]
     return {"truth": effect, "seed": seed, "form": form, "named": d.named_effect_, "ambiguous": d.ambiguous_,
             "supply_bar": truth.supply_pressure_gauge_pa / 1e5,
@@ -77,7 +96,7 @@ def run_case(args) -> dict:
             "gap_reduction_vs_calibrated": 1 - d.gap_after / cal,
             "holdout_gap_calibrated": d.gaps_["calibrated"]["holdout"]["overall"],
             "holdout_gap_after": d.gaps_["updated"]["holdout"]["overall"],
-            "noise_floor": noise_floor_nrmse(d),
+            "noise_floor": noise_floor_nrmse(d), "runs": [r.name for r in d.runs_],
             "candidates": [{"name": c.name, "passed": c.passed, "score": c.score,
                             "reasons": c.reasons, "effect": c.effect} for c in d.candidates_],
             "wall_s": wall}
@@ -93,18 +112,25 @@ def noise_floor_nrmse(d: Discrepancy) -> float:
 
 
 def run_matrix(n_cases: int, n_controls: int, kw: dict, form: str = "matched", workers: int = 1,
-               seed_offset: int = 0, ray_address: str | None = None) -> dict:
+               seed_offset: int = 0, ray_address: str | None = None, follow_up: bool = False) -> dict:
     cases = [(e, seed_offset + 1000 * (i + 1) + k) for k, e in enumerate(EFFECTS) for i in range(n_cases)]
     cases += [("none", seed_offset + 7000 + i) for i in range(n_controls)]
-    args = [(e, s, form, kw) for e, s in cases]
+    args = [(e, s, form, kw, follow_up) for e, s in cases]
     rows = run_tasks(run_case, [{"args": a} for a in args], workers, ray_address, desc="cases",
                      pythonpath=[str(Path(__file__).resolve().parent)])
     for n, row in enumerate(rows, 1):
         print(f"[{n:2d}/{len(cases)}] {row['truth']:18s} seed {row['seed']:5d} {row['supply_bar']:.1f} bar -> "
               f"{row['named']:18s} gap {row['gap_before']:.4f} -> {row['gap_after']:.4f} "
               f"({row['gap_reduction']:+.0%}; vs calibrated {row['gap_reduction_vs_calibrated']:+.0%}; "
-              f"noise floor {row['noise_floor']:.4f}) {row['wall_s']:5.1f} s", flush=True)
-    return summarise(rows)
+              f"noise floor {row['noise_floor']:.4f}) {row['wall_s']:5.1f} s"
+              + (f"; first {row['first_round']['named']}, then {', '.join(p['name'] for p in row['follow_up'])}"
+                 if "first_round" in row else ""), flush=True)
+    out = summarise(rows)
+    if follow_up:
+        print("\nthe same cases before the suggested experiments (the first round):")
+        out["first_round"] = summarise([{**r, **r.get("first_round", {})} for r in rows])
+        out["followed_up"] = sum("first_round" in r for r in rows)
+    return out
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -267,6 +293,10 @@ def main(argv=None) -> int:
     ap.add_argument("--orifice-models", nargs="+", default=None, choices=ORIFICE_MODELS,
                     help="orifice laws the workflow runs on, with each line model (default: the "
                          "stated one; writes *_forms.json and also prints the stated form's matrix)")
+    ap.add_argument("--follow-up", action="store_true",
+                    help="where the answer suggests an experiment (none with the evidence short, or "
+                         "ambiguous), make its planned runs on the case's true rig and run the workflow "
+                         "again on all the runs (writes *_followup.json; prints both rounds)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:
@@ -276,14 +306,14 @@ def main(argv=None) -> int:
               line_models=a.line_models, orifice_models=a.orifice_models)
     only = set(a.only.split(","))
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
-                            "form": a.form, "seed_offset": a.seed_offset,
+                            "form": a.form, "seed_offset": a.seed_offset, "follow_up": a.follow_up,
                             "workers": a.workers, "ray_address": a.ray_address, "form_ranges": FORM_RANGES if a.form == "mismatched" else None,
                             "nominal_perturbation": PERTURB, "workflow": Discrepancy(**kw).config()},
                  "provenance": provenance()}
     t0 = time.perf_counter()
     if "matrix" in only:
         res["matrix"] = run_matrix(a.cases, a.controls, kw, a.form, a.workers, a.seed_offset,
-                                   a.ray_address)
+                                   a.ray_address, a.follow_up)
     if "real" in only:
         res["real"] = run_real(kw)
     if "runtime" in only:
@@ -298,6 +328,8 @@ def main(argv=None) -> int:
         name = name.replace(".json", "_forms.json")
     elif a.line_models:
         name = name.replace(".json", "_lines.json")
+    if a.follow_up:
+        name = name.replace(".json", "_followup.json")
     (out / name).write_text(json.dumps(res, indent=2, default=float))
     print(f"\nwritten {out / name} ({res['total_wall_s']:.0f} s)")
     return 0

@@ -296,6 +296,7 @@ def test_decision(cands, named, ambiguous):
     assert d.named_effect_ == named and d.ambiguous_ == ambiguous
     if named == "ambiguous":
         assert "longer hold" in d.suggestion_ and "ambiguous" in d.decision_
+    assert d.suggested_for_ == ambiguous  # the runs to measure expose both, or nothing is asked
     assert "held-out" not in d.decision_ or "held-out run included" in d.decision_
 
 
@@ -313,9 +314,12 @@ def test_short_evidence_names_the_candidate_and_the_experiment():
     assert d.named_effect_ == "none" and d.suggestion_ == exposing_experiment("heat_transfer")
     assert "evidence short for heat_transfer" in d.decision_ and "trapped air" in d.decision_
     assert "fails: significant, improves_holdout" in d.decision_
+    d.rigs_ = [thesis_rig(2.5)]
+    assert d.suggested_for_ == ["heat_transfer"] and [p.name for p in d.suggested_runs()] == ["hold"]
     near.improvement_holdout = -0.2  # a held-out run made worse is no lead
     d._decide()
     assert d.suggestion_ is None and "evidence short" not in d.decision_
+    assert d.suggested_for_ == [] and d.suggested_runs() == []
 
 
 def test_decision_without_a_held_out_run_says_so():

@@ -72,6 +72,8 @@ class FittedDiscrepancy(Protocol):
     min_improvement: float
     discrepancy_term: str | None
 
+    def suggested_runs(self) -> list[Any]: ...
+
     @property
     def held_out_tested(self) -> bool: ...
 
@@ -134,6 +136,8 @@ def report_dict(d: FittedDiscrepancy, updated_model_path: str | None = None) -> 
         "warnings": d.warnings_,
         "ambiguous_between": d.ambiguous_,
         "suggested_experiment": d.suggestion_,
+        # the same as strokes to measure (followup.RunPlan): run them, then the workflow again
+        "suggested_runs": [p.to_dict() for p in d.suggested_runs()],
         "candidates": [c.to_json() for c in d.candidates_],
         "fitted_params": d.fitted_params_,
         "calibrated_params": d.calibrated_.as_dict(),
@@ -210,6 +214,15 @@ def markdown(rep: dict[str, Any]) -> str:
                f"{rep['suggested_experiment']}"), ""]
     elif rep.get("suggested_experiment"):
         L += [f"Suggested experiment (the evidence is short): {rep['suggested_experiment']}", ""]
+    if rep.get("suggested_runs"):
+        L += ["As strokes to measure (`suggested_runs` in report.json; record them in the "
+              "measurement format and run the workflow again on every run):", ""]
+        for p in rep["suggested_runs"]:
+            cut = {"never": "never cut", "arrival": "cut off on arrival"}.get(
+                p["cut"], f"cut off at {_fmt(p['cut_s'])} s")
+            L.append(f"- `{p['name']}`: {p['supply_pressure_gauge_pa'] / 1e5:.2g} bar gauge, "
+                     f"{_fmt(p['load_mass_kg'])} kg, {cut}, recorded for {_fmt(p['t_end_s'])} s: {p['why']}")
+        L.append("")
     fits = rep.get("form_fits") or {}
     if len(fits) > 1:
         stated = next(iter(fits))

@@ -43,6 +43,7 @@ from .candidates import (
     exposing_experiment,
     separating_experiment,
 )
+from .followup import RunPlan, suggested_runs as plan_runs
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
 from .prepare import MAX_SAMPLES, prepare
 from .report import write_report
@@ -677,6 +678,7 @@ class Discrepancy:
         passed = [c for c in self.candidates_ if c.passed]
         self.ambiguous_: list[str] = []
         self.suggestion_: str | None = None
+        self.suggested_for_: list[str] = []  # the effects the suggested experiment exposes
         untested = any(c.checks.get("improves_holdout", False) is None for c in self.candidates_)
         note = (" - not tested on a held-out run (a single run, or holdout none): fitted, not "
                 "validated") if untested else ""
@@ -697,6 +699,7 @@ class Discrepancy:
             if short:
                 c = short[0]
                 self.suggestion_ = exposing_experiment(c.name)
+                self.suggested_for_ = [c.name]
                 self.decision_ += (f"; evidence short for {c.name} (it removes "
                                    f"{c.improvement_fit:.0%} of the fitted runs' misfit, mostly {PHASE_TEXT[max(c.by_phase, key=c.by_phase.get)]}, "
                                    f"but fails: {', '.join(k for k, v in c.checks.items() if v is False)}); "
@@ -713,6 +716,7 @@ class Discrepancy:
                 self.named_effect_ = "ambiguous"
                 self.ambiguous_ = [a.name, b.name]
                 self.suggestion_ = separating_experiment(a.name, b.name)
+                self.suggested_for_ = [a.name, b.name]
                 how = ("explain the data about equally" if stat >= 0 else
                        f"disagree: {a.name} removes more of the misfit, {b.name} fits the residuals"
                        f"{' read through the discrepancy term' if getattr(self, 'whiteners_', None) else ''} better")
@@ -730,6 +734,12 @@ class Discrepancy:
                               f"{a.score:.1%} of the calibrated model's misfit over all runs")
         if len(passed) > 1:
             self.decision_ += f" (clearly better than {passed[1].name}, p = {self.separation_['p_value']:.2g})"
+
+    def suggested_runs(self) -> list[RunPlan]:
+        """The suggested experiment as extension strokes to measure (:mod:`.followup`), planned
+        on the rig the runs state; empty where nothing is suggested. Measure them and run the
+        workflow again on all the runs."""
+        return plan_runs(self.suggested_for_, self.rigs_) if getattr(self, "suggested_for_", None) else []
 
     def _gaps(self, sims) -> dict[str, dict[str, float]]:
         out = {}
@@ -843,6 +853,11 @@ class Discrepancy:
         elif worst:
             lines.append("worst residuals of the calibrated nominal model:")
             lines += [f"  {f.sentence()}" for f in worst]
+        plans = self.suggested_runs()
+        if plans:
+            lines.append("runs to measure next (then run the workflow again on every run):")
+            lines += [f"  {p.name}: {p.supply_pressure_gauge_pa / 1e5:.2g} bar gauge, {p.load_mass_kg:g} kg, "
+                      f"cut {p.cut if p.cut != 'at' else f'at {p.cut_s:g} s'}, {p.t_end_s:g} s" for p in plans]
         return "\n".join(lines)
 
     def __str__(self) -> str:
