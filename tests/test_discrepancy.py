@@ -320,6 +320,8 @@ def test_short_evidence_names_the_candidate_and_the_experiment():
     d._decide()
     assert d.suggestion_ is None and "evidence short" not in d.decision_
     assert d.suggested_for_ == [] and d.suggested_runs() == []
+    d.suggested_for_ = ["valve_delay"]  # a lead no stroke is planned for keeps only its text
+    assert d.suggested_runs() == []
 
 
 def test_decision_without_a_held_out_run_says_so():

@@ -34,6 +34,8 @@ HOLD_S = 6.0  #: length of a hold run [s]
 SLOW_LIMIT_S = 4.0  #: a slow stroke must complete within this on the stated rig [s]
 FAST_SUPPLY_PA = 6e5  #: supply of the fast stroke [Pa gauge]
 EARLY_FRACTION = 0.3  #: the early cut-off's piston position, share of the stroke
+#: the effects a stroke is planned for (others, e.g. a valve delay, keep the suggestion's text)
+PLANNED = ("leakage", "heat_transfer", "stribeck_friction", "sensor_lag", "dead_volume")
 
 
 @dataclass(frozen=True)
@@ -108,9 +110,8 @@ def suggested_runs(effects: list[str], rigs: list[RigParams]) -> list[RunPlan]:
         raise ValueError("suggested_runs needs the rigs the runs state")
     rig = rigs[0]
     high = max(g.supply_pressure_gauge_pa for g in rigs)
-    makers = {"leakage": lambda: _hold(rig, high), "heat_transfer": lambda: _hold(rig, high),
-              "stribeck_friction": lambda: _slow(rig), "sensor_lag": lambda: _fast(rig),
-              "dead_volume": lambda: _early(rig, high)}
+    makers = dict(zip(PLANNED, (lambda: _hold(rig, high), lambda: _hold(rig, high),
+                                lambda: _slow(rig), lambda: _fast(rig), lambda: _early(rig, high))))
     plans: list[RunPlan] = []
     for name in effects:
         if name not in makers:

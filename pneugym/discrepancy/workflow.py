@@ -43,7 +43,7 @@ from .candidates import (
     exposing_experiment,
     separating_experiment,
 )
-from .followup import RunPlan, suggested_runs as plan_runs
+from .followup import PLANNED, RunPlan, suggested_runs as plan_runs
 from .fit import Executor, FitResult, Job, Problem, best_of, fixed_step, solve
 from .prepare import MAX_SAMPLES, prepare
 from .report import write_report
@@ -737,9 +737,11 @@ class Discrepancy:
 
     def suggested_runs(self) -> list[RunPlan]:
         """The suggested experiment as extension strokes to measure (:mod:`.followup`), planned
-        on the rig the runs state; empty where nothing is suggested. Measure them and run the
-        workflow again on all the runs."""
-        return plan_runs(self.suggested_for_, self.rigs_) if getattr(self, "suggested_for_", None) else []
+        on the rig the runs state; empty where nothing is suggested, or only for an effect no
+        stroke is planned for (:data:`.followup.PLANNED`). Measure them and run the workflow
+        again on all the runs."""
+        wanted = [e for e in getattr(self, "suggested_for_", []) if e in PLANNED]
+        return plan_runs(wanted, self.rigs_) if wanted else []
 
     def _gaps(self, sims) -> dict[str, dict[str, float]]:
         out = {}
