@@ -32,6 +32,9 @@ def test_leak_and_heat_share_one_hold_at_the_highest_supply():
     assert hold.cut == "arrival" and hold.t_end_s == HOLD_S
     assert hold.supply_pressure_gauge_pa == 2.5e5 and hold.load_mass_kg == RIGS[0].load_mass_kg
     assert hold.schedule() == [(0.0, 1)]
+    assert hold.sentence().startswith("`hold`: 2.5 bar gauge, 10 kg, cut off on arrival, recorded for 6 s: ")
+    # the report's markdown reads the plan back from report.json
+    assert RunPlan(**hold.to_dict()) == hold
 
 
 def _completes(rig, bar):
@@ -50,6 +53,7 @@ def test_the_early_cutoff_is_placed_at_its_share_of_the_stroke():
     (early,) = suggested_runs(["dead_volume"], RIGS)
     rig = RIGS[1]
     assert early.cut == "at" and early.schedule() == [(0.0, 1), (early.cut_s, 0)]
+    assert f"cut off at {early.cut_s:g} s" in early.sentence()
     # the command goes out a valve delay and a ramp before the piston passes the share
     tr = Plant(rig).run(3.0, record_dt=1e-3)
     t_pass = early.cut_s + rig.valve_delay_s + rig.valve.ramp_s

@@ -54,6 +54,13 @@ class RunPlan:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def sentence(self) -> str:
+        """The plan in one line, for the report and the summary."""
+        cut = (f"cut off at {self.cut_s:g} s" if self.cut == "at" else
+               {"never": "never cut", "arrival": "cut off on arrival"}[self.cut])
+        return (f"`{self.name}`: {self.supply_pressure_gauge_pa / 1e5:.2g} bar gauge, {self.load_mass_kg:g} kg, "
+                f"{cut}, recorded for {self.t_end_s:g} s: {self.why}")
+
     def schedule(self) -> list[tuple[float, int]]:
         """Valve commands for :meth:`pneugym.plant.Plant.run` / :func:`~pneugym.data.simulate_run`."""
         return [(0.0, 1)] if self.cut != "at" else [(0.0, 1), (float(self.cut_s), 0)]
@@ -91,11 +98,12 @@ def _fast(rig: RigParams) -> RunPlan:
 
 
 def _early(rig: RigParams, supply_pa: float) -> RunPlan | None:
-    traj = Plant(_at(rig, supply_pa)).run(3.0, [(0.0, 1)], record_dt=1e-3)
+    at = _at(rig, supply_pa)
+    traj = Plant(at).run(3.0, [(0.0, 1)], record_dt=1e-3)
     reached = np.flatnonzero(traj["x"] >= EARLY_FRACTION * rig.cylinder.stroke_m)
     if reached.size == 0:
         return None
-    cut = max(float(traj["t"][reached[0]]) - _at(rig, supply_pa).valve_delay_s - rig.valve.ramp_s, 0.0)
+    cut = max(float(traj["t"][reached[0]]) - at.valve_delay_s - rig.valve.ramp_s, 0.0)
     return RunPlan("early_cutoff_30", supply_pa, rig.load_mass_kg, "at", round(cut, 3), 4.0,
                    f"a cut-off at {EARLY_FRACTION:.0%} of the stroke: the trapped air expands over "
                    f"most of the stroke, its pressure following the whole volume, dead volume "

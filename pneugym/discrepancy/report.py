@@ -15,6 +15,7 @@ from ..params import RigParams
 from ..provenance import provenance
 from .candidates import FitParam
 from .fit import FitResult
+from .followup import RunPlan
 from .prepare import Preparation
 from .residuals import (
     CHANNELS,
@@ -217,12 +218,7 @@ def markdown(rep: dict[str, Any]) -> str:
     if rep.get("suggested_runs"):
         L += ["As strokes to measure (`suggested_runs` in report.json; record them in the "
               "measurement format and run the workflow again on every run):", ""]
-        for p in rep["suggested_runs"]:
-            cut = {"never": "never cut", "arrival": "cut off on arrival"}.get(
-                p["cut"], f"cut off at {_fmt(p['cut_s'])} s")
-            L.append(f"- `{p['name']}`: {p['supply_pressure_gauge_pa'] / 1e5:.2g} bar gauge, "
-                     f"{_fmt(p['load_mass_kg'])} kg, {cut}, recorded for {_fmt(p['t_end_s'])} s: {p['why']}")
-        L.append("")
+        L += [f"- {RunPlan(**p).sentence()}" for p in rep["suggested_runs"]] + [""]
     fits = rep.get("form_fits") or {}
     if len(fits) > 1:
         stated = next(iter(fits))

@@ -858,8 +858,7 @@ class Discrepancy:
         plans = self.suggested_runs()
         if plans:
             lines.append("runs to measure next (then run the workflow again on every run):")
-            lines += [f"  {p.name}: {p.supply_pressure_gauge_pa / 1e5:.2g} bar gauge, {p.load_mass_kg:g} kg, "
-                      f"cut {p.cut if p.cut != 'at' else f'at {p.cut_s:g} s'}, {p.t_end_s:g} s" for p in plans]
+            lines += [f"  {p.sentence()}" for p in plans]
         return "\n".join(lines)
 
     def __str__(self) -> str:
