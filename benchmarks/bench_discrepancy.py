@@ -61,23 +61,41 @@ def run_case(args) -> dict:
     """One case through the workflow (a process of its own with ``--workers``). With a fifth
     item ``True`` (``--follow-up``), where the answer suggests an experiment (``none`` with the
     evidence short, or ``ambiguous``) its planned runs are made on the same true rig and the
-    workflow runs again on all the runs: the row is the second answer, ``first_round`` the first."""
+    workflow runs again on all the runs: the row is the second answer, ``first_round`` the first.
+    A sixth item (``--follow-up-holdout``) picks the second round's held-out run: ``"auto"`` (the
+    workflow's rule on all the runs), ``"first"`` (the first round's), ``"both"`` (auto, then
+    the first round's in ``kept_holdout``, fitted again only where the two differ)."""
     effect, seed, form, kw, *rest = args
+    follow_up = bool(rest[0]) if rest else False
+    holdout = rest[1] if len(rest) > 1 else "auto"
     known, truth, runs = make_case(effect, seed, form)
     t0 = time.perf_counter()
     d = Discrepancy(**kw).fit(runs)
     row = case_row(d, effect, seed, form, truth, time.perf_counter() - t0)
-    plans = d.suggested_runs() if rest and rest[0] else []
+    plans = d.suggested_runs() if follow_up else []
     if plans:
         extra = simulate_plans(plans, truth, known, seed=seed + 100)
+        first_holdout = d.holdout_runs_[0].name if d.holdout_runs_ else None
         t0 = time.perf_counter()
-        d2 = Discrepancy(**kw).fit(runs + extra)
-        first = {k: row[k] for k in ("named", "ambiguous", "gap_after", "gap_reduction",
-                                     "gap_reduction_vs_calibrated", "noise_floor", "candidates", "wall_s")}
+        d2 = Discrepancy(**{**kw, "holdout": first_holdout if holdout == "first" else "auto"}).fit(
+            runs + extra)
+        first = {k: row[k] for k in ROUND_KEYS}
         row = case_row(d2, effect, seed, form, truth, time.perf_counter() - t0)
         row["first_round"] = first
         row["follow_up"] = [p.to_dict() for p in plans]
+        if holdout == "both":  # the same runs again, the first round's held-out run kept
+            moved = [r.name for r in d2.holdout_runs_] != [first_holdout]
+            t0 = time.perf_counter()
+            d3 = Discrepancy(**{**kw, "holdout": first_holdout}).fit(runs + extra) if moved else d2
+            kept = case_row(d3, effect, seed, form, truth, time.perf_counter() - t0)
+            row["kept_holdout"] = {**{k: kept[k] for k in ROUND_KEYS}, "moved": moved,
+                                   "holdout": first_holdout}
     return row
+
+
+#: what a row keeps of another round of the same case
+ROUND_KEYS = ("named", "ambiguous", "gap_after", "gap_reduction", "gap_reduction_vs_calibrated",
+              "noise_floor", "candidates", "wall_s", "holdout")
 
 
 def case_row(d: Discrepancy, effect: str, seed: int, form: str, truth, wall: float) -> dict:
@@ -97,6 +115,7 @@ def case_row(d: Discrepancy, effect: str, seed: int, form: str, truth, wall: flo
             "holdout_gap_calibrated": d.gaps_["calibrated"]["holdout"]["overall"],
             "holdout_gap_after": d.gaps_["updated"]["holdout"]["overall"],
             "noise_floor": noise_floor_nrmse(d), "runs": [r.name for r in d.runs_],
+            "holdout": d.holdout_runs_[0].name if d.holdout_runs_ else None,
             "candidates": [{"name": c.name, "passed": c.passed, "score": c.score,
                             "reasons": c.reasons, "effect": c.effect} for c in d.candidates_],
             "wall_s": wall}
@@ -112,10 +131,11 @@ def noise_floor_nrmse(d: Discrepancy) -> float:
 
 
 def run_matrix(n_cases: int, n_controls: int, kw: dict, form: str = "matched", workers: int = 1,
-               seed_offset: int = 0, ray_address: str | None = None, follow_up: bool = False) -> dict:
+               seed_offset: int = 0, ray_address: str | None = None, follow_up: bool = False,
+               follow_up_holdout: str = "auto") -> dict:
     cases = [(e, seed_offset + 1000 * (i + 1) + k) for k, e in enumerate(EFFECTS) for i in range(n_cases)]
     cases += [("none", seed_offset + 7000 + i) for i in range(n_controls)]
-    args = [(e, s, form, kw, follow_up) for e, s in cases]
+    args = [(e, s, form, kw, follow_up, follow_up_holdout) for e, s in cases]
     rows = run_tasks(run_case, [{"args": a} for a in args], workers, ray_address, desc="cases",
                      pythonpath=[str(Path(__file__).resolve().parent)])
     for n, row in enumerate(rows, 1):
@@ -130,6 +150,10 @@ def run_matrix(n_cases: int, n_controls: int, kw: dict, form: str = "matched", w
         print("\nthe same cases before the suggested experiments (the first round):")
         out["first_round"] = summarise([{**r, **r.get("first_round", {})} for r in rows])
         out["followed_up"] = sum("first_round" in r for r in rows)
+        if follow_up_holdout == "both":
+            print("\nthe second round with the first round's held-out run kept "
+                  f"(moved in {sum(r.get('kept_holdout', {}).get('moved', False) for r in rows)} cases):")
+            out["kept_holdout"] = summarise([{**r, **r.get("kept_holdout", {})} for r in rows])
     return out
 
 
@@ -297,6 +321,9 @@ def main(argv=None) -> int:
                     help="where the answer suggests an experiment (none with the evidence short, or "
                          "ambiguous), make its planned runs on the case's true rig and run the workflow "
                          "again on all the runs (writes *_followup.json; prints both rounds)")
+    ap.add_argument("--follow-up-holdout", choices=("auto", "first", "both"), default="auto",
+                    help="the follow-up round's held-out run: auto (the workflow's rule on all the "
+                         "runs), first (the first round's), both (auto, and first where it differs)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     a = ap.parse_args(argv)
     if a.quick:
@@ -307,13 +334,14 @@ def main(argv=None) -> int:
     only = set(a.only.split(","))
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
                             "form": a.form, "seed_offset": a.seed_offset, "follow_up": a.follow_up,
+                            "follow_up_holdout": a.follow_up_holdout,
                             "workers": a.workers, "ray_address": a.ray_address, "form_ranges": FORM_RANGES if a.form == "mismatched" else None,
                             "nominal_perturbation": PERTURB, "workflow": Discrepancy(**kw).config()},
                  "provenance": provenance()}
     t0 = time.perf_counter()
     if "matrix" in only:
         res["matrix"] = run_matrix(a.cases, a.controls, kw, a.form, a.workers, a.seed_offset,
-                                   a.ray_address, a.follow_up)
+                                   a.ray_address, a.follow_up, a.follow_up_holdout)
     if "real" in only:
         res["real"] = run_real(kw)
     if "runtime" in only:

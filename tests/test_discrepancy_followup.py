@@ -86,3 +86,27 @@ def test_planned_runs_on_a_simulated_rig_state_their_operating_point():
     # each plan its own noise stream, the same seed the same run
     again = simulate_plans(plans[:1], truth, thesis_rig(2.5), seed=3)[0]
     assert np.array_equal(again.p_drive, hold.p_drive)
+
+
+def test_the_bench_follows_up_with_either_held_out_run(monkeypatch):
+    """``bench_discrepancy.py --follow-up --follow-up-holdout both``: the second round on all the
+    runs by the workflow's rule, and again with the first round's held-out run kept where a
+    planned stroke moved it (tiny fits: the plumbing, not the answers)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_discrepancy.py"
+    spec = importlib.util.spec_from_file_location("bench_discrepancy", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    # whatever the first round says, follow up with a never-cut stroke (it moves the median)
+    monkeypatch.setattr(bench.Discrepancy, "suggested_runs",
+                        lambda self: suggested_runs(["sensor_lag"], self.rigs_))
+    kw = {"candidates": ["sensor_lag"], "n_starts": 1, "n_probe": 2, "max_nfev": 4, "seed": 0, "n_jobs": 1}
+    row = bench.run_case(("none", 7000, "mismatched", kw, True, "both"))
+    first, kept = row["first_round"]["holdout"], row["kept_holdout"]
+    assert row["runs"][-1] == "followup_fast_stroke" and row["follow_up"][0]["name"] == "fast_stroke"
+    assert row["holdout"] != first and kept["moved"] and kept["holdout"] == first
+    assert set(bench.ROUND_KEYS) <= set(kept)
+    out = bench.summarise([{**row, **kept}])
+    assert out["control_accuracy"] == float(kept["named"] == "none")
