@@ -55,6 +55,9 @@ from pneugym.provenance import provenance  # noqa: E402
 
 EFFECTS = tuple(CANDIDATES)
 LABELS = EFFECTS + ("none", "ambiguous")
+#: what a row keeps of another round of the same case
+ROUND_KEYS = ("named", "ambiguous", "gap_after", "gap_reduction", "gap_reduction_vs_calibrated",
+              "noise_floor", "candidates", "wall_s", "holdout")
 
 
 def run_case(args) -> dict:
@@ -88,14 +91,8 @@ def run_case(args) -> dict:
             t0 = time.perf_counter()
             d3 = Discrepancy(**{**kw, "holdout": first_holdout}).fit(runs + extra) if moved else d2
             kept = case_row(d3, effect, seed, form, truth, time.perf_counter() - t0)
-            row["kept_holdout"] = {**{k: kept[k] for k in ROUND_KEYS}, "moved": moved,
-                                   "holdout": first_holdout}
+            row["kept_holdout"] = {**{k: kept[k] for k in ROUND_KEYS}, "moved": moved}
     return row
-
-
-#: what a row keeps of another round of the same case
-ROUND_KEYS = ("named", "ambiguous", "gap_after", "gap_reduction", "gap_reduction_vs_calibrated",
-              "noise_floor", "candidates", "wall_s", "holdout")
 
 
 def case_row(d: Discrepancy, effect: str, seed: int, form: str, truth, wall: float) -> dict:

@@ -115,3 +115,20 @@ def conventional() -> Run:
 def end_stroke_cut() -> Run:
     """Default rig, the thesis's end-stroke cut-off (cut the supply on arrival)."""
     return simulate(cut_on_arrival=True)
+
+
+@pytest.fixture(scope="session")
+def load_bench():
+    """``load_bench("bench_x")``: the script ``benchmarks/bench_x.py`` as a module (the
+    benchmarks are scripts, not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    def load(name: str):
+        path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

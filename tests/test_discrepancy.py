@@ -962,16 +962,11 @@ def test_each_runs_own_friction_and_a_calibration_on_it():
         .fit(runs[:1]).relative_friction_
 
 
-def test_the_bench_reads_every_model_form_from_one_run(capsys):
+def test_the_bench_reads_every_model_form_from_one_run(capsys, load_bench):
     """``bench_discrepancy.py --line-models`` / ``--orifice-models``: every case records each
     model form's answer, so one run gives the matrix of the form chosen and the stated form's
     (the default workflow's); results written before the orifice laws (``line_fits``) read too."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_discrepancy.py"
-    spec = importlib.util.spec_from_file_location("bench_discrepancy", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("bench_discrepancy")
 
     def row(truth, fd, lumped, chosen, old=False):
         fits = {"fd+thesis": {"named": fd, "gap_calibrated": 0.02, "gap_after": 0.01},

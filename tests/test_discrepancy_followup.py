@@ -88,17 +88,11 @@ def test_planned_runs_on_a_simulated_rig_state_their_operating_point():
     assert np.array_equal(again.p_drive, hold.p_drive)
 
 
-def test_the_bench_follows_up_with_either_held_out_run(monkeypatch):
+def test_the_bench_follows_up_with_either_held_out_run(monkeypatch, load_bench):
     """``bench_discrepancy.py --follow-up --follow-up-holdout both``: the second round on all the
     runs by the workflow's rule, and again with the first round's held-out run kept where a
     planned stroke moved it (tiny fits: the plumbing, not the answers)."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_discrepancy.py"
-    spec = importlib.util.spec_from_file_location("bench_discrepancy", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("bench_discrepancy")
     # whatever the first round says, follow up with a never-cut stroke (it moves the median)
     monkeypatch.setattr(bench.Discrepancy, "suggested_runs",
                         lambda self: suggested_runs(["sensor_lag"], self.rigs_))

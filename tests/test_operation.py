@@ -658,18 +658,13 @@ def test_cli_hands_the_adaptive_controllers_the_reference_cut(tmp_path, monkeypa
     assert tuple(action.choices) == REFERENCE_CUTS  # the command line's twin of the controllers'
 
 
-def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path):
+def test_the_yardstick_benchmark_scores_runs_against_three_oracles(gaslaw_life, tmp_path, load_bench):
     """benchmarks/bench_operation_oracle.py on a short record: the search oracle's own run
     scores 1 against it and at most 1 against every step's best, the conventional one 0 against
     all; every step's best is never below the search's, the slip-robust cut's return never
     above every step's best."""
-    import importlib.util
-
     db, _, ids = gaslaw_life
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_operation_oracle.py"
-    spec = importlib.util.spec_from_file_location("bench_operation_oracle", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("bench_operation_oracle")
     res = bench.main(["--db", str(db), "--out", str(tmp_path), "--no-progress"])
     assert (tmp_path / "oracles.json").exists() and (tmp_path / "oracles.png").exists()
     o, c = res["runs"][ids["oracle"]], res["runs"][ids["conventional"]]
