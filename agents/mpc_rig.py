@@ -67,7 +67,10 @@ class RigModelPolicy(TimedCutPolicy):
     ``margin_periods``: half-width of the choice's window; ``rule``: ``"worst"`` (the cut whose
     worst return within the window is best, :func:`agents.mpc.robust_best`) or ``"mean"``
     (whose mean, :func:`agents.mpc.expected_best`); ``coarse``: the search's coarse grid in
-    control periods (1: every period). The observation must hold the payload
+    control periods (1: every period); ``stick_weight``: a plausible rig's stick-slip priced at
+    this many times the environment's ``w_stick`` in the plan (the operator's aversion to
+    sticking; the figures keep ``w_stick``); ``shift_periods``: the chosen cut moved this many
+    control periods later. The observation must hold the payload
     (``observe_rig=True``, as every evaluation has)."""
 
     name = "mpc-rig"
@@ -76,14 +79,16 @@ class RigModelPolicy(TimedCutPolicy):
 
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
                  model: Any = None, members: int = 8, spread: float = 2.0, forms: bool = False,
-                 margin_periods: int = 1, rule: str = "mean", coarse: int = 4, seed: int = 0):
+                 margin_periods: int = 1, rule: str = "mean", coarse: int = 4, seed: int = 0,
+                 stick_weight: float = 1.0, shift_periods: int = 0):
         super().__init__(layout, math.inf)
-        if not (isinstance(spread, (int, float)) and 0 <= spread < math.inf):
-            raise ValueError(f"spread = {spread!r} must be a finite number >= 0")
+        for name, v in (("spread", spread), ("stick_weight", stick_weight)):
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf):
+                raise ValueError(f"{name} = {v!r} must be a finite number >= 0")
         if rule not in RULES:
             raise ValueError(f"rule = {rule!r}: choose from {tuple(RULES)}")
         for name, v, lo in (("members", members, 1), ("margin_periods", margin_periods, 0),
-                            ("coarse", coarse, 1)):
+                            ("coarse", coarse, 1), ("shift_periods", shift_periods, 0)):
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
                 raise ValueError(f"{name} = {v!r} must be an integer >= {lo}")
         names = {f["name"] for f in layout.get("rig_features") or []}
@@ -95,6 +100,7 @@ class RigModelPolicy(TimedCutPolicy):
                            if k not in ("preset", "conditions", "render_mode", "rig")}
         self.n_members, self.margin, self.coarse, self.seed = members, margin_periods, coarse, seed
         self.rule, self.spread, self.forms = rule, float(spread), bool(forms)
+        self.stick_weight, self.shift = float(stick_weight), shift_periods
         self.period = float(layout["control_period_s"])
         self.window = float(self.env_config.get("decision_window_s", 0.02))
         self.model = None
@@ -123,7 +129,9 @@ class RigModelPolicy(TimedCutPolicy):
         self.model = model
         self.source = f"mpc-rig on a model of {', '.join(model.runs) or 'measured runs'}"
         self.rigs = model.members(self.n_members, self.seed, self.spread, self.forms)
-        self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig},
+        w_stick = self.stick_weight * float(self.env_config.get("w_stick", 0.5))
+        self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig,
+                                                  "w_stick": w_stick},
                                     coarse=self.coarse, seed=self.seed)
         fitted = rig_fields(model.rig)
         self.changes = [tuple((k, v) for k, v in rig_fields(r).items()
@@ -196,5 +204,6 @@ class RigModelPolicy(TimedCutPolicy):
                             for tc in cands[k]} for k in cands}
 
             for k, js in search_cuts(score, ranges, self.period, self.coarse).items():
-                self._plans[points[k]] = RULES[self.rule](js, self.margin * self.period)
+                t = RULES[self.rule](js, self.margin * self.period)
+                self._plans[points[k]] = t + self.shift * self.period  # (inf stays inf)
         return {p: self._plans[p] for p in points}

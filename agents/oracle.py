@@ -91,11 +91,15 @@ class OraclePolicy(TimedCutPolicy):
 
     def _returns(self, conds: Sequence[Any], t_cuts: np.ndarray) -> np.ndarray:
         """Return of each (conditions, cut-off time) pair, all in one batched run."""
+        return self._figures(conds, t_cuts)["objective"]
+
+    def _figures(self, conds: Sequence[Any], t_cuts: np.ndarray) -> dict[str, np.ndarray]:
+        """Final figures of each (conditions, cut-off time) pair, all in one batched run."""
         from pneugym.envs.cutoff import CutOffVectorEnv
 
         env = CutOffVectorEnv(num_envs=t_cuts.size, autoreset=False, **self.env_config)
         pol = TimedCutPolicy(env.observation_layout(), t_cuts)
-        return run_first_episodes(env, pol, list(conds), self.seed)["objective"]
+        return run_first_episodes(env, pol, list(conds), self.seed)
 
     def plan(self, cond) -> tuple[float, float]:
         """``(t_cut_s, return)`` of the best cut-off for conditions ``cond`` (``inf`` = never)."""
@@ -135,13 +139,20 @@ class OraclePolicy(TimedCutPolicy):
     def score_cuts(self, conds: dict, cands: dict) -> dict[Any, dict[float, float]]:
         """Returns of cut-off times: ``conds`` ``{key: Conditions}`` (noise-free), ``cands``
         ``{key: [t_cut_s, ...]}``; all pairs in one batched run of the environment."""
+        return {key: {t: v[0] for t, v in js.items()}
+                for key, js in self.score_figures(conds, cands, ("objective",)).items()}
+
+    def score_figures(self, conds: dict, cands: dict, names: Sequence[str]
+                      ) -> dict[Any, dict[float, tuple[float, ...]]]:
+        """:meth:`score_cuts` with the final figures ``names`` (e.g. ``("objective",
+        "stick_slip_events")``) of every cut, as a tuple, from the same batched run."""
         pairs = [(key, t) for key, ts in cands.items() for t in ts]
-        out: dict[tuple, dict[float, float]] = {key: {} for key in cands}
+        out: dict[Any, dict[float, tuple[float, ...]]] = {key: {} for key in cands}
         if not pairs:
             return out
-        j = self._returns([conds[k] for k, _ in pairs], np.array([t for _, t in pairs]))
-        for (key, t), v in zip(pairs, j):
-            out[key][t] = float(v)
+        fig = self._figures([conds[k] for k, _ in pairs], np.array([t for _, t in pairs]))
+        for i, (key, t) in enumerate(pairs):
+            out[key][t] = tuple(float(fig[n][i]) for n in names)
         return out
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:

@@ -11,14 +11,21 @@ with and without the other model forms the strokes cannot rule out (``forms``), 
 plausible rigs each.
 Every rule (``worst`` / ``mean`` return within ``--margins`` control periods either side) then
 picks its cut, and the truth's return at that cut is the episode's (``mpc-rig`` cuts on the
-clock). Reports the oracle fraction of every setting over all draws, the orifice law found
-against the truth's, and writes ``mpc_plan.json`` and ``mpc_plan.png``.
+clock). ``--stick-weights`` prices a stick-slip of the plausible rigs at that many times the
+environment's ``w_stick`` (``RigModelPolicy(stick_weight=...)``; the truth's return, the figure,
+keeps the environment's); ``--shifts`` moves the plan's cut that many control periods later
+(``RigModelPolicy(shift_periods=...)``). Reports the oracle fraction, stick-slip rate and stalls
+of every setting over all draws, the orifice law found against the truth's, and writes
+``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``; ``--fits DIR`` keeps
+every commissioning fit there and reuses it.
 
 The plans here search every control period (``RigModelPolicy(coarse=1)``); ``mpc-rig`` searches
 every fourth, then every period around its three best, and took the same cuts on all 40
 validation draws.
 
     python benchmarks/bench_mpc_plan.py --seed 3000000    # validation draws, about 2 h on 2 cores
+    python benchmarks/bench_mpc_plan.py --seed 3000000 --laws stated --spreads 2 --margins 1 \
+        --forms off --stick-weights 1 1.5 2 3 4 --shifts 0 1 2 3 4   # about 50 min
 """
 from __future__ import annotations
 
@@ -33,6 +40,8 @@ import numpy as np
 from common import ROOT  # noqa: F401  (the checkout on sys.path)
 
 LAWS = {"stated law": None, "both laws": ("thesis", "iso6358")}
+LAW_CHOICES = {"stated": "stated law", "both": "both laws"}
+FIGURES = ("objective", "stick_slip_events", "stalled")  # what a cut is scored by
 
 
 def main(argv=None) -> dict:
@@ -47,6 +56,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--margins", type=int, nargs="+", default=[0, 1, 3],
                     help="half-widths of the rules' windows [control periods]")
     ap.add_argument("--members", type=int, default=8, help="plausible rigs per plan (mpc-rig's 8)")
+    ap.add_argument("--laws", nargs="+", choices=list(LAW_CHOICES), default=list(LAW_CHOICES),
+                    help="commission with the stated orifice law, trying both, or each")
+    ap.add_argument("--forms", nargs="+", choices=["off", "on"], default=["off", "on"],
+                    help="plan without / with the other forms the strokes cannot rule out")
+    ap.add_argument("--stick-weights", type=float, nargs="+", default=[1.0],
+                    help="a plausible rig's stick-slip priced at this many times w_stick")
+    ap.add_argument("--shifts", type=int, nargs="+", default=[0],
+                    help="the plan's cut moved this many control periods later")
+    ap.add_argument("--fits", default=None,
+                    help="folder keeping the commissioning fits (reused when there)")
     ap.add_argument("--out", default="bench/mpc-plan", help="folder for the results")
     ap.add_argument("--commission-starts", type=int, default=None,
                     help="least-squares starts per line model (default: mpc-rig's)")
@@ -55,39 +74,47 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
         ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
+    if min(args.stick_weights) < 0 or not all(map(math.isfinite, args.stick_weights)):
+        ap.error("--stick-weights must be finite and >= 0")
+    if min(args.shifts) < 0:
+        ap.error("--shifts must be >= 0")
     from tqdm import tqdm
 
     from agents.evaluation.commissioning import commissioning_runs
     from agents.evaluation.run import oracle_fraction, run_policy
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
     from agents.evaluation.suites import family_draws
-    from pneugym.commission import commission
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
     cfg = evaluation_env_config({})
     probe = CutOffVectorEnv(num_envs=1, **cfg)
     conds = family_draws(args.seed, args.episodes)  # the draws of bench_mpc.py
-    ref = {spec: [float(v) for v in run_policy(make_named_policy(spec, probe)[1], conds, cfg,
-                                               args.seed)["objective"]]
-           for spec in ("conventional", "oracle")}
+    ref, ref_sticks = {}, {}
+    for spec in ("conventional", "oracle"):
+        out = run_policy(make_named_policy(spec, probe)[1], conds, cfg, args.seed)
+        ref[spec] = [float(v) for v in out["objective"]]
+        ref_sticks[spec] = [int(v) for v in out["stick_slip_events"]]
     _, policy = make_named_policy("mpc-rig", probe)
     policy.n_members = args.members
     opts = dict(policy.commission_options)
     opts.update({k: v for k, v in (("starts", args.commission_starts),
                                    ("max_nfev", args.commission_nfev)) if v is not None})
-    settings = [(law, s, forms) for law in LAWS for s in args.spreads for forms in (False, True)]
+    laws = {LAW_CHOICES[k]: LAWS[LAW_CHOICES[k]] for k in args.laws}
+    settings = [(law, s, forms) for law in laws for s in args.spreads
+                for forms in (f == "on" for f in args.forms)]
+    w_stick = float(probe.weights["w_stick"])
     draws = []
     for g, c in enumerate(tqdm(conds, desc="commissioning", unit="rig")):
         runs = commissioning_runs(c.rig_changes, probe.rig, args.seed, g)
         truth = {k: v for k, v in c.rig_changes if k in ("line.model", "valve.flow_model")}
         d = {"draw": g, "truth_form": [truth.get("line.model"), truth.get("valve.flow_model")],
-             "fits": {}, "returns": {}}
+             "fits": {}, "returns": {}, "sticks": {}, "stalls": {}, "cuts": {}}
         truth_j: dict = {}
         plans: dict = {}  # mean returns by plausible rigs (forms adds none where none is kept)
-        for law, laws in LAWS.items():
+        for law, law_models in laws.items():
             t0 = time.perf_counter()
-            model = commission(runs, orifice_models=laws, **opts)
+            model = _fit(runs, law_models, opts, args.fits and Path(args.fits) / f"{g}-{law}")
             d["fits"][law] = {"form": [model.rig.line.model, model.rig.valve.flow_model],
                               "misfit": model.misfit, "seconds": time.perf_counter() - t0,
                               "alternatives": [[r.line.model, r.valve.flow_model, dv] for r, dv
@@ -97,21 +124,34 @@ def main(argv=None) -> dict:
                 policy.spread, policy.forms = s, forms
                 policy.set_model(model)
                 key = (law, tuple(policy.changes))
-                mean = plans[key] = plans.get(key) or _scores(policy, c, probe.rig, truth_j)
-                for rule in ("worst", "mean"):
-                    for m in args.margins:
-                        t = _pick(mean, policy.period, rule, m)
-                        d["returns"][_key(law, s, forms, rule, m)] = truth_j[t]
+                scored = plans[key] = plans.get(key) or _scores(policy, c, probe.rig, truth_j)
+                for w, rule, m, sh in ((w, r, m, sh) for w in args.stick_weights
+                                       for r in ("worst", "mean") for m in args.margins
+                                       for sh in args.shifts):
+                    mean = {t: j - (w - 1.0) * w_stick * n for t, (j, n) in scored.items()}
+                    t = _later(_pick(mean, policy.period, rule, m), sh, policy.period)
+                    k = _key(law, s, forms, rule, m, w, sh)
+                    _truth_at(t, policy, c, truth_j)
+                    d["cuts"][k] = t
+                    d["returns"][k], d["sticks"][k], d["stalls"][k] = truth_j[t]
         draws.append(d)
     conv, orc = float(np.mean(ref["conventional"])), float(np.mean(ref["oracle"]))
     table = {k: oracle_fraction(float(np.mean([d["returns"][k] for d in draws])), conv, orc)
              for k in draws[0]["returns"]}
+    sticks = {k: float(np.mean([d["sticks"][k] > 0 for d in draws])) for k in table}
+    sticks["oracle"] = float(np.mean([n > 0 for n in ref_sticks["oracle"]]))
+    stalls = {k: int(sum(d["stalls"][k] > 0 for d in draws)) for k in table}
     for k, f in sorted(table.items(), key=lambda kv: -kv[1]):
-        print(f"{k:50s} oracle fraction {f:.3f}")
+        print(f"{k:62s} oracle fraction {f:.3f}, stick-slip {100 * sticks[k]:.1f} %, "
+              f"stalls {stalls[k]}")
+    print(f"{'oracle':62s} stick-slip {100 * sticks['oracle']:.1f} %")
     right = {law: sum(d["fits"][law]["form"][1] == d["truth_form"][1] for d in draws)
-             for law in LAWS}
-    print(f"orifice law as the truth's: {right['both laws']} of {len(draws)} draws trying both")
-    result = {"fractions": table, "orifice_law_right": right, "draws": draws, "reference": ref,
+             for law in laws}
+    for law, n in right.items():
+        print(f"orifice law as the truth's ({law}): {n} of {len(draws)} draws")
+    result = {"fractions": table, "stick_slip_rates": sticks, "stalls": stalls,
+              "orifice_law_right": right,
+              "draws": draws, "reference": ref, "reference_sticks": ref_sticks,
               "config": {**vars(args), "commission": opts}, "provenance": provenance()}
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -121,8 +161,41 @@ def main(argv=None) -> dict:
     return result
 
 
-def _key(law: str, spread: float, forms: bool, rule: str, margin: int) -> str:
-    return f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
+def _key(law: str, spread: float, forms: bool, rule: str, margin: int, w: float = 1.0,
+         shift: int = 0) -> str:
+    stick = f", stick weight {w:g}" if w != 1.0 else ""
+    later = f", later by {shift}" if shift else ""
+    return (f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
+            f"{stick}{later}")
+
+
+def _later(t: float, shift: int, period: float) -> float:
+    """Cut-off time ``t`` moved ``shift`` control periods later (never cutting stays)."""
+    return round(t + shift * period, 6) if math.isfinite(t) else t
+
+
+def _truth_at(t: float, policy, c, truth_j: dict) -> None:
+    """Score the truth's cut ``t`` into ``truth_j`` unless it is there (a shifted cut past the
+    grid)."""
+    from agents.oracle import OraclePolicy
+
+    if t not in truth_j:
+        quiet = dataclasses.replace(c, position_noise_m=0.0, pressure_noise_pa=0.0)
+        truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_figures(
+            {0: quiet}, {0: [t]}, FIGURES)[0])
+
+
+def _fit(runs, law_models, opts: dict, where: Path | None):
+    """The commissioning fit of ``runs`` (``law_models``: the orifice laws tried), kept in
+    folder ``where`` and read from there when it is already."""
+    from pneugym.commission import Commissioned, commission
+
+    if where is not None and (where / "commissioning.json").is_file():
+        return Commissioned.load(where)
+    model = commission(runs, orifice_models=law_models, **opts)
+    if where is not None:
+        model.save(where)
+    return model
 
 
 def _num(v):
@@ -131,10 +204,11 @@ def _num(v):
 
 
 def _scores(policy, c, base, truth_j: dict) -> dict:
-    """Every cut's mean return over ``policy``'s plausible rigs, on the control-period grid
-    up to the latest of their and the truth's stroke ends plus the decision window (``mpc-rig``'s
-    range); ``truth_j`` (the truth's returns, by cut) is filled in for every cut of the grid.
-    ``{}`` when no plausible rig completes a stroke (``mpc-rig`` then never cuts)."""
+    """Every cut's mean return and stick-slip events over ``policy``'s plausible rigs (a pair),
+    on the control-period grid up to the latest of their and the truth's stroke ends plus the
+    decision window (``mpc-rig``'s range); ``truth_j`` (the truth's :data:`FIGURES`, by cut) is
+    filled in for every cut of the grid. ``{}`` when no plausible rig completes a stroke
+    (``mpc-rig`` then never cuts)."""
     from agents.oracle import OraclePolicy
     from pneugym.envs import conventional_figures
 
@@ -148,10 +222,10 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     grid = [round(k * policy.period, 6) for k in range(k1 + 1)] + [math.inf]
     missing = [t for t in grid if t not in truth_j]
     if missing:
-        truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_cuts(
-            {0: quiet}, {0: missing})[0])
-    per = policy.planner.score_cuts(members, {j: grid for j in members})
-    return {t: float(np.mean([per[j][t] for j in per])) for t in grid}
+        truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_figures(
+            {0: quiet}, {0: missing}, FIGURES)[0])
+    per = policy.planner.score_figures(members, {j: grid for j in members}, FIGURES[:2])
+    return {t: tuple(np.mean([per[j][t] for j in per], axis=0)) for t in grid}
 
 
 def _pick(mean: dict, period: float, rule: str, margin: int) -> float:
