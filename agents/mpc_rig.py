@@ -69,7 +69,8 @@ class RigModelPolicy(TimedCutPolicy):
     (whose mean, :func:`agents.mpc.expected_best`); ``coarse``: the search's coarse grid in
     control periods (1: every period); ``stick_weight``: a plausible rig's stick-slip priced at
     this many times the environment's ``w_stick`` in the plan (the operator's aversion to
-    sticking; the figures keep ``w_stick``); ``shift_periods``: the chosen cut moved this many
+    sticking; the figures keep ``w_stick``); ``stall_weight``: a plausible rig's stall priced
+    so against ``w_stall``; ``shift_periods``: the chosen cut moved this many
     control periods later. The observation must hold the payload
     (``observe_rig=True``, as every evaluation has)."""
 
@@ -80,9 +81,10 @@ class RigModelPolicy(TimedCutPolicy):
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
                  model: Any = None, members: int = 8, spread: float = 2.0, forms: bool = False,
                  margin_periods: int = 1, rule: str = "mean", coarse: int = 4, seed: int = 0,
-                 stick_weight: float = 1.0, shift_periods: int = 0):
+                 stick_weight: float = 1.0, stall_weight: float = 1.0, shift_periods: int = 0):
         super().__init__(layout, math.inf)
-        for name, v in (("spread", spread), ("stick_weight", stick_weight)):
+        for name, v in (("spread", spread), ("stick_weight", stick_weight),
+                        ("stall_weight", stall_weight)):
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf):
                 raise ValueError(f"{name} = {v!r} must be a finite number >= 0")
         if rule not in RULES:
@@ -100,7 +102,8 @@ class RigModelPolicy(TimedCutPolicy):
                            if k not in ("preset", "conditions", "render_mode", "rig")}
         self.n_members, self.margin, self.coarse, self.seed = members, margin_periods, coarse, seed
         self.rule, self.spread, self.forms = rule, float(spread), bool(forms)
-        self.stick_weight, self.shift = float(stick_weight), shift_periods
+        self.stick_weight, self.stall_weight = float(stick_weight), float(stall_weight)
+        self.shift = shift_periods
         self.period = float(layout["control_period_s"])
         self.window = float(self.env_config.get("decision_window_s", 0.02))
         self.model = None
@@ -129,9 +132,9 @@ class RigModelPolicy(TimedCutPolicy):
         self.model = model
         self.source = f"mpc-rig on a model of {', '.join(model.runs) or 'measured runs'}"
         self.rigs = model.members(self.n_members, self.seed, self.spread, self.forms)
-        w_stick = self.stick_weight * float(self.env_config.get("w_stick", 0.5))
-        self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig,
-                                                  "w_stick": w_stick},
+        priced = {"w_stick": self.stick_weight * float(self.env_config.get("w_stick", 0.5)),
+                  "w_stall": self.stall_weight * float(self.env_config.get("w_stall", 2.0))}
+        self.planner = OraclePolicy(self.layout, {**self.env_config, "rig": model.rig, **priced},
                                     coarse=self.coarse, seed=self.seed)
         fitted = rig_fields(model.rig)
         self.changes = [tuple((k, v) for k, v in rig_fields(r).items()

@@ -145,14 +145,16 @@ class OraclePolicy(TimedCutPolicy):
     def score_figures(self, conds: dict, cands: dict, names: Sequence[str]
                       ) -> dict[Any, dict[float, tuple[float, ...]]]:
         """:meth:`score_cuts` with the final figures ``names`` (e.g. ``("objective",
-        "stick_slip_events")``) of every cut, as a tuple, from the same batched run."""
+        "stick_slip_events")``) of every cut, as a tuple, from the same batched run (a figure
+        the environment leaves ``None``, e.g. a stalled stroke's time, as ``nan``)."""
         pairs = [(key, t) for key, ts in cands.items() for t in ts]
         out: dict[Any, dict[float, tuple[float, ...]]] = {key: {} for key in cands}
         if not pairs:
             return out
         fig = self._figures([conds[k] for k, _ in pairs], np.array([t for _, t in pairs]))
         for i, (key, t) in enumerate(pairs):
-            out[key][t] = tuple(float(fig[n][i]) for n in names)
+            out[key][t] = tuple(math.nan if fig[n][i] is None else float(fig[n][i])
+                                for n in names)  # (None, e.g. a stalled stroke's time: nan)
         return out
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:

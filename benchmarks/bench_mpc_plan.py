@@ -13,9 +13,9 @@ Every rule (``worst`` / ``mean`` return within ``--margins`` control periods eit
 picks its cut, and the truth's return at that cut is the episode's (``mpc-rig`` cuts on the
 clock). ``--stick-weights`` prices a stick-slip of the plausible rigs at that many times the
 environment's ``w_stick`` (``RigModelPolicy(stick_weight=...)``; the truth's return, the figure,
-keeps the environment's); ``--shifts`` moves the plan's cut that many control periods later
-(``RigModelPolicy(shift_periods=...)``). Reports the oracle fraction, stick-slip rate and stalls
-of every setting over all draws, the orifice law found against the truth's, and writes
+keeps the environment's), ``--stall-weights`` a stall so against ``w_stall``; ``--shifts`` moves the plan's cut that many control periods later
+(``RigModelPolicy(shift_periods=...)``). Reports the oracle fraction, stick-slip rate, stalls
+and strokes not completed of every setting over all draws, the orifice law found against the truth's, and writes
 ``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``; ``--fits DIR`` keeps
 every commissioning fit there and reuses it.
 
@@ -41,7 +41,8 @@ from common import ROOT  # noqa: F401  (the checkout on sys.path)
 
 LAWS = {"stated law": None, "both laws": ("thesis", "iso6358")}
 LAW_CHOICES = {"stated": "stated law", "both": "both laws"}
-FIGURES = ("objective", "stick_slip_events", "stalled")  # what a cut is scored by
+#: what a cut is scored by (``w_stall`` prices a stroke not completed; a stall is one stuck short)
+FIGURES = ("objective", "stick_slip_events", "completed", "stalled")
 
 
 def main(argv=None) -> dict:
@@ -62,6 +63,8 @@ def main(argv=None) -> dict:
                     help="plan without / with the other forms the strokes cannot rule out")
     ap.add_argument("--stick-weights", type=float, nargs="+", default=[1.0],
                     help="a plausible rig's stick-slip priced at this many times w_stick")
+    ap.add_argument("--stall-weights", type=float, nargs="+", default=[1.0],
+                    help="a plausible rig's stall priced at this many times w_stall")
     ap.add_argument("--shifts", type=int, nargs="+", default=[0],
                     help="the plan's cut moved this many control periods later")
     ap.add_argument("--fits", default=None,
@@ -74,8 +77,10 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
         ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
-    if min(args.stick_weights) < 0 or not all(map(math.isfinite, args.stick_weights)):
-        ap.error("--stick-weights must be finite and >= 0")
+    for name in ("stick_weights", "stall_weights"):
+        v = getattr(args, name)
+        if min(v) < 0 or not all(map(math.isfinite, v)):
+            ap.error(f"--{name.replace('_', '-')} must be finite and >= 0")
     if min(args.shifts) < 0:
         ap.error("--shifts must be >= 0")
     from tqdm import tqdm
@@ -103,13 +108,14 @@ def main(argv=None) -> dict:
     laws = {LAW_CHOICES[k]: LAWS[LAW_CHOICES[k]] for k in args.laws}
     settings = [(law, s, forms) for law in laws for s in args.spreads
                 for forms in (f == "on" for f in args.forms)]
-    w_stick = float(probe.weights["w_stick"])
+    w_stick, w_stall = float(probe.weights["w_stick"]), float(probe.weights["w_stall"])
     draws = []
     for g, c in enumerate(tqdm(conds, desc="commissioning", unit="rig")):
         runs = commissioning_runs(c.rig_changes, probe.rig, args.seed, g)
         truth = {k: v for k, v in c.rig_changes if k in ("line.model", "valve.flow_model")}
         d = {"draw": g, "truth_form": [truth.get("line.model"), truth.get("valve.flow_model")],
-             "fits": {}, "returns": {}, "sticks": {}, "stalls": {}, "cuts": {}}
+             "fits": {}, "returns": {}, "sticks": {}, "stalls": {}, "completed": {},
+             "cuts": {}}
         truth_j: dict = {}
         plans: dict = {}  # mean returns by plausible rigs (forms adds none where none is kept)
         for law, law_models in laws.items():
@@ -125,15 +131,17 @@ def main(argv=None) -> dict:
                 policy.set_model(model)
                 key = (law, tuple(policy.changes))
                 scored = plans[key] = plans.get(key) or _scores(policy, c, probe.rig, truth_j)
-                for w, rule, m, sh in ((w, r, m, sh) for w in args.stick_weights
-                                       for r in ("worst", "mean") for m in args.margins
-                                       for sh in args.shifts):
-                    mean = {t: j - (w - 1.0) * w_stick * n for t, (j, n) in scored.items()}
+                for w, ws, rule, m, sh in ((w, ws, r, m, sh) for w in args.stick_weights
+                                           for ws in args.stall_weights
+                                           for r in ("worst", "mean") for m in args.margins
+                                           for sh in args.shifts):
+                    mean = {t: j - (w - 1.0) * w_stick * n - (ws - 1.0) * w_stall * (1.0 - done)
+                            for t, (j, n, done, _) in scored.items()}
                     t = _later(_pick(mean, policy.period, rule, m), sh, policy.period)
-                    k = _key(law, s, forms, rule, m, w, sh)
+                    k = _key(law, s, forms, rule, m, w, sh, ws)
                     _truth_at(t, policy, c, truth_j)
                     d["cuts"][k] = t
-                    d["returns"][k], d["sticks"][k], d["stalls"][k] = truth_j[t]
+                    d["returns"][k], d["sticks"][k], d["completed"][k], d["stalls"][k] = truth_j[t]
         draws.append(d)
     conv, orc = float(np.mean(ref["conventional"])), float(np.mean(ref["oracle"]))
     table = {k: oracle_fraction(float(np.mean([d["returns"][k] for d in draws])), conv, orc)
@@ -141,15 +149,17 @@ def main(argv=None) -> dict:
     sticks = {k: float(np.mean([d["sticks"][k] > 0 for d in draws])) for k in table}
     sticks["oracle"] = float(np.mean([n > 0 for n in ref_sticks["oracle"]]))
     stalls = {k: int(sum(d["stalls"][k] > 0 for d in draws)) for k in table}
+    undone = {k: int(sum(not d["completed"][k] for d in draws)) for k in table}
     for k, f in sorted(table.items(), key=lambda kv: -kv[1]):
         print(f"{k:62s} oracle fraction {f:.3f}, stick-slip {100 * sticks[k]:.1f} %, "
-              f"stalls {stalls[k]}")
+              f"stalls {stalls[k]}, not completed {undone[k]}")
     print(f"{'oracle':62s} stick-slip {100 * sticks['oracle']:.1f} %")
     right = {law: sum(d["fits"][law]["form"][1] == d["truth_form"][1] for d in draws)
              for law in laws}
     for law, n in right.items():
         print(f"orifice law as the truth's ({law}): {n} of {len(draws)} draws")
     result = {"fractions": table, "stick_slip_rates": sticks, "stalls": stalls,
+              "not_completed": undone,
               "orifice_law_right": right,
               "draws": draws, "reference": ref, "reference_sticks": ref_sticks,
               "config": {**vars(args), "commission": opts}, "provenance": provenance()}
@@ -162,8 +172,9 @@ def main(argv=None) -> dict:
 
 
 def _key(law: str, spread: float, forms: bool, rule: str, margin: int, w: float = 1.0,
-         shift: int = 0) -> str:
+         shift: int = 0, ws: float = 1.0) -> str:
     stick = f", stick weight {w:g}" if w != 1.0 else ""
+    stick += f", stall weight {ws:g}" if ws != 1.0 else ""
     later = f", later by {shift}" if shift else ""
     return (f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
             f"{stick}{later}")
@@ -204,7 +215,7 @@ def _num(v):
 
 
 def _scores(policy, c, base, truth_j: dict) -> dict:
-    """Every cut's mean return and stick-slip events over ``policy``'s plausible rigs (a pair),
+    """Every cut's mean :data:`FIGURES` over ``policy``'s plausible rigs (a tuple),
     on the control-period grid up to the latest of their and the truth's stroke ends plus the
     decision window (``mpc-rig``'s range); ``truth_j`` (the truth's :data:`FIGURES`, by cut) is
     filled in for every cut of the grid. ``{}`` when no plausible rig completes a stroke
@@ -224,7 +235,7 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     if missing:
         truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_figures(
             {0: quiet}, {0: missing}, FIGURES)[0])
-    per = policy.planner.score_figures(members, {j: grid for j in members}, FIGURES[:2])
+    per = policy.planner.score_figures(members, {j: grid for j in members}, FIGURES)
     return {t: tuple(np.mean([per[j][t] for j in per], axis=0)) for t in grid}
 
 

@@ -117,22 +117,27 @@ def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
 
 
 def test_mpc_rig_prices_stick_slip_and_moves_its_cut_as_told(model):
-    """``stick_weight`` prices a plausible rig's stick-slip at that many times ``w_stick`` in
-    the plan: its returns are the environment's less the extra price of each cut's events (what
-    bench_mpc_plan.py's ``--stick-weights`` scores from one run); ``shift_periods`` cuts later."""
+    """``stick_weight`` (``stall_weight``) prices a plausible rig's stick-slip (a stroke not
+    completed) at that
+    many times ``w_stick`` (``w_stall``) in the plan: its returns are the environment's less the
+    extra price of each cut's events (what bench_mpc_plan.py's ``--stick-weights`` and
+    ``--stall-weights`` score from one run); ``shift_periods`` cuts later."""
     env = CutOffVectorEnv(num_envs=1, autoreset=False, rig=TRUTH, observe_rig=True, w_stick=0.4)
     one = RigModelPolicy.for_env(env, model=model, members=1)
-    three = RigModelPolicy.for_env(env, model=model, members=1, stick_weight=3.0)
+    three = RigModelPolicy.for_env(env, model=model, members=1, stick_weight=3.0,
+                                   stall_weight=5.0)
     assert three.planner.env_config["w_stick"] == pytest.approx(1.2)
+    assert three.planner.env_config["w_stall"] == pytest.approx(10.0)
     c = {0: Conditions(supply_pressure_gauge_pa=2e5, load_mass_kg=25.0)}
     cuts = {0: [k * 0.02 for k in range(5, 40)]}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fig = one.planner.score_figures(c, cuts, ("objective", "stick_slip_events"))[0]
+        fig = one.planner.score_figures(c, cuts, ("objective", "stick_slip_events", "completed"))[0]
         priced = three.planner.score_cuts(c, cuts)[0]
-    assert any(n > 0 for _, n in fig.values())  # some cuts stick: the price shows
-    for t, (j, n) in fig.items():
-        assert priced[t] == pytest.approx(j - 2.0 * 0.4 * n, abs=1e-9)
+    assert any(n > 0 for _, n, _ in fig.values())  # some cuts stick: the price shows
+    assert not all(done for _, _, done in fig.values())  # and some do not complete
+    for t, (j, n, done) in fig.items():
+        assert priced[t] == pytest.approx(j - 2.0 * 0.4 * n - 4.0 * 2.0 * (1 - done), abs=1e-9)
     later = RigModelPolicy.for_env(env, model=model, members=1, shift_periods=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -140,6 +145,8 @@ def test_mpc_rig_prices_stick_slip_and_moves_its_cut_as_told(model):
     assert math.isfinite(t0) and t2 == pytest.approx(t0 + 2 * 0.005)  # two periods later
     with pytest.raises(ValueError, match="stick_weight"):
         RigModelPolicy.for_env(env, stick_weight=-1.0)
+    with pytest.raises(ValueError, match="stall_weight"):
+        RigModelPolicy.for_env(env, stall_weight=math.inf)
     with pytest.raises(ValueError, match="shift_periods"):
         RigModelPolicy.for_env(env, shift_periods=-1)
 
