@@ -118,10 +118,10 @@ def test_mpc_rig_plans_near_the_oracle_on_the_true_rig(model):
 
 def test_mpc_rig_prices_stick_slip_and_moves_its_cut_as_told(model):
     """``stick_weight`` (``stall_weight``) prices a plausible rig's stick-slip (a stroke not
-    completed) at that
-    many times ``w_stick`` (``w_stall``) in the plan: its returns are the environment's less the
-    extra price of each cut's events (what bench_mpc_plan.py's ``--stick-weights`` and
-    ``--stall-weights`` score from one run); ``shift_periods`` cuts later."""
+    completed) at that many times ``w_stick`` (``w_stall``) in the plan: its returns are the
+    environment's less the extra price of each cut's events (what bench_mpc_plan.py's
+    ``--stick-weights`` and ``--stall-weights`` score from one run); ``shift_periods`` cuts
+    later."""
     env = CutOffVectorEnv(num_envs=1, autoreset=False, rig=TRUTH, observe_rig=True, w_stick=0.4)
     one = RigModelPolicy.for_env(env, model=model, members=1)
     three = RigModelPolicy.for_env(env, model=model, members=1, stick_weight=3.0,
