@@ -69,8 +69,8 @@ class RigModelPolicy(TimedCutPolicy):
     (whose mean, :func:`agents.mpc.expected_best`); ``coarse``: the search's coarse grid in
     control periods (1: every period); ``stick_weight``: a plausible rig's stick-slip priced at
     this many times the environment's ``w_stick`` in the plan (the operator's aversion to
-    sticking; the figures keep ``w_stick``); ``stall_weight``: a plausible rig's stall priced
-    so against ``w_stall``; ``shift_periods``: the chosen cut moved this many
+    sticking; the figures keep ``w_stick``); ``stall_weight``: a plausible rig's stroke not
+    completed priced so against ``w_stall``; ``shift_periods``: the chosen cut moved this many
     control periods later. The observation must hold the payload
     (``observe_rig=True``, as every evaluation has)."""
 

@@ -13,11 +13,14 @@ Every rule (``worst`` / ``mean`` return within ``--margins`` control periods eit
 picks its cut, and the truth's return at that cut is the episode's (``mpc-rig`` cuts on the
 clock). ``--stick-weights`` prices a stick-slip of the plausible rigs at that many times the
 environment's ``w_stick`` (``RigModelPolicy(stick_weight=...)``; the truth's return, the figure,
-keeps the environment's), ``--stall-weights`` a stall so against ``w_stall``; ``--shifts`` moves the plan's cut that many control periods later
-(``RigModelPolicy(shift_periods=...)``). Reports the oracle fraction, stick-slip rate, stalls
-and strokes not completed of every setting over all draws, the orifice law found against the truth's, and writes
-``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``; ``--fits DIR`` keeps
-every commissioning fit there and reuses it.
+keeps the environment's), ``--stall-weights`` a stroke not completed so against ``w_stall``;
+``--shifts`` moves the plan's cut that many control periods later
+(``RigModelPolicy(shift_periods=...)``). The plausible rigs are simulated once and every price
+applied to their figures (the objective is linear in the weights; tests/test_commission.py
+checks it against the planner's own returns). Reports the oracle fraction, stick-slip rate,
+stalls and strokes not completed of every setting over all draws, the orifice law found against
+the truth's, and writes ``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``;
+``--fits DIR`` keeps every commissioning fit there and reuses it.
 
 The plans here search every control period (``RigModelPolicy(coarse=1)``); ``mpc-rig`` searches
 every fourth, then every period around its three best, and took the same cuts on all 40
@@ -139,7 +142,7 @@ def main(argv=None) -> dict:
                             for t, (j, n, done, _) in scored.items()}
                     t = _later(_pick(mean, policy.period, rule, m), sh, policy.period)
                     k = _key(law, s, forms, rule, m, w, sh, ws)
-                    _truth_at(t, policy, c, truth_j)
+                    _truth_at([t], policy, c, truth_j)  # (a shifted cut past the grid)
                     d["cuts"][k] = t
                     d["returns"][k], d["sticks"][k], d["completed"][k], d["stalls"][k] = truth_j[t]
         draws.append(d)
@@ -159,9 +162,8 @@ def main(argv=None) -> dict:
     for law, n in right.items():
         print(f"orifice law as the truth's ({law}): {n} of {len(draws)} draws")
     result = {"fractions": table, "stick_slip_rates": sticks, "stalls": stalls,
-              "not_completed": undone,
-              "orifice_law_right": right,
-              "draws": draws, "reference": ref, "reference_sticks": ref_sticks,
+              "not_completed": undone, "orifice_law_right": right, "draws": draws,
+              "reference": ref, "reference_sticks": ref_sticks,
               "config": {**vars(args), "commission": opts}, "provenance": provenance()}
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -173,11 +175,11 @@ def main(argv=None) -> dict:
 
 def _key(law: str, spread: float, forms: bool, rule: str, margin: int, w: float = 1.0,
          shift: int = 0, ws: float = 1.0) -> str:
-    stick = f", stick weight {w:g}" if w != 1.0 else ""
-    stick += f", stall weight {ws:g}" if ws != 1.0 else ""
+    priced = f", stick weight {w:g}" if w != 1.0 else ""
+    priced += f", stall weight {ws:g}" if ws != 1.0 else ""
     later = f", later by {shift}" if shift else ""
     return (f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
-            f"{stick}{later}")
+            f"{priced}{later}")
 
 
 def _later(t: float, shift: int, period: float) -> float:
@@ -185,15 +187,16 @@ def _later(t: float, shift: int, period: float) -> float:
     return round(t + shift * period, 6) if math.isfinite(t) else t
 
 
-def _truth_at(t: float, policy, c, truth_j: dict) -> None:
-    """Score the truth's cut ``t`` into ``truth_j`` unless it is there (a shifted cut past the
-    grid)."""
+def _truth_at(cuts: list, policy, c, truth_j: dict) -> None:
+    """Score the truth's (noise-free) :data:`FIGURES` at those of ``cuts`` not yet in
+    ``truth_j`` into it (by cut)."""
     from agents.oracle import OraclePolicy
 
-    if t not in truth_j:
+    missing = [t for t in cuts if t not in truth_j]
+    if missing:
         quiet = dataclasses.replace(c, position_noise_m=0.0, pressure_noise_pa=0.0)
         truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_figures(
-            {0: quiet}, {0: [t]}, FIGURES)[0])
+            {0: quiet}, {0: missing}, FIGURES)[0])
 
 
 def _fit(runs, law_models, opts: dict, where: Path | None):
@@ -220,7 +223,6 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     decision window (``mpc-rig``'s range); ``truth_j`` (the truth's :data:`FIGURES`, by cut) is
     filled in for every cut of the grid. ``{}`` when no plausible rig completes a stroke
     (``mpc-rig`` then never cuts)."""
-    from agents.oracle import OraclePolicy
     from pneugym.envs import conventional_figures
 
     point = (round(float(c.supply_pressure_gauge_pa), 0), round(float(c.load_mass_kg), 4))
@@ -231,10 +233,7 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     ends.append(conventional_figures(quiet.rig(base), quiet.dip, period_s=policy.period)[0])
     k1 = int(math.ceil((max(ends) + policy.window) / policy.period)) + 1
     grid = [round(k * policy.period, 6) for k in range(k1 + 1)] + [math.inf]
-    missing = [t for t in grid if t not in truth_j]
-    if missing:
-        truth_j.update(OraclePolicy(policy.layout, policy.env_config).score_figures(
-            {0: quiet}, {0: missing}, FIGURES)[0])
+    _truth_at(grid, policy, c, truth_j)
     per = policy.planner.score_figures(members, {j: grid for j in members}, FIGURES)
     return {t: tuple(np.mean([per[j][t] for j in per], axis=0)) for t in grid}
 
