@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Collection, Mapping
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -288,23 +288,34 @@ def fit_trace(measured: np.ndarray, make_rig: Callable[[np.ndarray], RigParams],
     return from_unit(sol.x), sol.x
 
 
-def expected_best(returns: Mapping[float, float], margin_s: float) -> float:
+def expected_best(returns: Mapping[float, float], margin_s: float,
+                  allowed: Collection[float] | None = None) -> float:
     """The cut-off time whose mean return among the tried times within ``margin_s`` either side
     is best: the expected return when the model misplaces the cut's effects by up to
-    ``margin_s`` (``inf``, never cutting, stands for itself)."""
+    ``margin_s`` (``inf``, never cutting, stands for itself). ``allowed``: the times it may
+    choose from (default all; the windows still read every tried time)."""
     finite = sorted(t for t in returns if math.isfinite(t))
     mean = {t: float(np.mean([returns[s] for s in finite if abs(s - t) <= margin_s + 1e-9]))
             for t in finite}
     if math.inf in returns:
         mean[math.inf] = returns[math.inf]
-    return max(mean, key=mean.get)
+    return _best(mean, allowed)
 
 
-def robust_best(returns: Mapping[float, float], margin_s: float) -> float:
+def robust_best(returns: Mapping[float, float], margin_s: float,
+                allowed: Collection[float] | None = None) -> float:
     """The cut-off time whose worst return among the tried times within ``margin_s`` either side
-    is best (``inf``, never cutting, stands for itself)."""
+    is best (``inf``, never cutting, stands for itself); ``allowed`` as :func:`expected_best`."""
     finite = sorted(t for t in returns if math.isfinite(t))
     worst = {t: min(returns[s] for s in finite if abs(s - t) <= margin_s + 1e-9) for t in finite}
     if math.inf in returns:
         worst[math.inf] = returns[math.inf]
-    return max(worst, key=worst.get)
+    return _best(worst, allowed)
+
+
+def _best(value: Mapping[float, float], allowed: Collection[float] | None) -> float:
+    """The key of ``value`` with the highest value among ``allowed`` (all when ``None``)."""
+    keys = [t for t in value if allowed is None or t in allowed]
+    if not keys:
+        raise ValueError("no allowed cut-off time among the tried ones")
+    return max(keys, key=value.get)

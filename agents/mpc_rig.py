@@ -13,7 +13,10 @@ draws from the fit's uncertainty at twice its standard deviations,
 :meth:`~pneugym.commission.Commissioned.members`), averages the return over them and cuts at the
 time whose mean average within ``margin_periods`` (one control period) either side is best
 (:func:`agents.mpc.expected_best`): a cut on the edge of a stick-slip or a stall, which the model
-may misplace by a few ms, is given up for a little air (issue 12, part 5). The wide spread puts
+may misplace by a few ms, is given up for a little air (issue 12, part 5). It takes only a cut
+whose stroke every plausible rig completes (``min_completion``, a chance constraint): on a fit
+far from the rig every completing stroke may stick, and a stroke that never completes would
+then score better (docs/policies.md). The wide spread puts
 the edge where rigs a little unlike the fitted one have it; the earlier plan (the fit's own
 spread, the worst return within three periods: ``spread=1, rule="worst", margin_periods=3``)
 did worse on 100 fresh family draws pooled (docs/policies.md).
@@ -53,6 +56,8 @@ MEMBER_FIELDS = (
     "line.model", "valve.flow_model", "solver.dt_s")
 #: how a plan picks its cut from the plausible rigs' mean returns (RigModelPolicy's ``rule``)
 RULES = {"mean": expected_best, "worst": robust_best}
+#: the plausible rigs' figures a plan reads: the return, and whether the stroke completed
+PLAN_FIGURES = ("objective", "completed")
 #: of those, the model form (and its substep): another form's fit differs in them
 FORM_FIELDS = ("line.model", "valve.flow_model", "solver.dt_s")
 
@@ -71,7 +76,10 @@ class RigModelPolicy(TimedCutPolicy):
     this many times the environment's ``w_stick`` in the plan (the operator's aversion to
     sticking; the figures keep ``w_stick``); ``stall_weight``: a plausible rig's stroke not
     completed priced so against ``w_stall``; ``shift_periods``: the chosen cut moved this many
-    control periods later. The observation must hold the payload
+    control periods later; ``min_completion``: a chance constraint, the plan only takes a cut
+    whose stroke at least this share of the plausible rigs complete (default 1: all of them;
+    0: any cut; never cutting, which every plausible rig planned on completes, always
+    qualifies; :func:`completing`). The observation must hold the payload
     (``observe_rig=True``, as every evaluation has)."""
 
     name = "mpc-rig"
@@ -81,8 +89,12 @@ class RigModelPolicy(TimedCutPolicy):
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
                  model: Any = None, members: int = 8, spread: float = 2.0, forms: bool = False,
                  margin_periods: int = 1, rule: str = "mean", coarse: int = 4, seed: int = 0,
-                 stick_weight: float = 1.0, stall_weight: float = 1.0, shift_periods: int = 0):
+                 stick_weight: float = 1.0, stall_weight: float = 1.0, shift_periods: int = 0,
+                 min_completion: float = 1.0):
         super().__init__(layout, math.inf)
+        if not (isinstance(min_completion, (int, float)) and not isinstance(min_completion, bool)
+                and 0 <= min_completion <= 1):
+            raise ValueError(f"min_completion = {min_completion!r} must be a share in [0, 1]")
         for name, v in (("spread", spread), ("stick_weight", stick_weight),
                         ("stall_weight", stall_weight)):
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf):
@@ -103,7 +115,7 @@ class RigModelPolicy(TimedCutPolicy):
         self.n_members, self.margin, self.coarse, self.seed = members, margin_periods, coarse, seed
         self.rule, self.spread, self.forms = rule, float(spread), bool(forms)
         self.stick_weight, self.stall_weight = float(stick_weight), float(stall_weight)
-        self.shift = shift_periods
+        self.shift, self.min_completion = shift_periods, float(min_completion)
         self.period = float(layout["control_period_s"])
         self.window = float(self.env_config.get("decision_window_s", 0.02))
         self.model = None
@@ -200,13 +212,30 @@ class RigModelPolicy(TimedCutPolicy):
                 conds.update({(k, j): c for j, c in members.items()})
                 ranges[k] = (0, int(math.ceil((max(t_end) + self.window) / self.period)) + 1)
 
-            def score(cands: dict) -> dict:
-                per = self.planner.score_cuts(conds, {(k, j): cands[k] for k, j in conds
-                                                      if k in cands})
-                return {k: {tc: float(np.mean([per[kk, j][tc] for kk, j in per if kk == k]))
-                            for tc in cands[k]} for k in cands}
+            mean: dict = {k: {} for k in ranges}  # mean return and completed share, by cut
+            done: dict = {k: {} for k in ranges}
 
-            for k, js in search_cuts(score, ranges, self.period, self.coarse).items():
-                t = RULES[self.rule](js, self.margin * self.period)
+            def score(cands: dict) -> dict:
+                per = self.planner.score_figures(conds, {(k, j): cands[k] for k, j in conds
+                                                         if k in cands}, PLAN_FIGURES)
+                for k in cands:
+                    for tc in cands[k]:
+                        figs = [per[kk, j][tc] for kk, j in per if kk == k]
+                        mean[k][tc] = float(np.mean([f[0] for f in figs]))
+                        done[k][tc] = float(np.mean([f[1] for f in figs]))
+                # the search refines around the best cuts the plan may take
+                return {k: {tc: mean[k][tc] if done[k][tc] >= self.min_completion - 1e-9
+                            else -math.inf for tc in cands[k]} for k in cands}
+
+            for k in search_cuts(score, ranges, self.period, self.coarse):
+                t = RULES[self.rule](mean[k], self.margin * self.period,
+                                     completing(done[k], self.min_completion))
                 self._plans[points[k]] = t + self.shift * self.period  # (inf stays inf)
         return {p: self._plans[p] for p in points}
+
+
+def completing(done: Mapping[float, float], share: float) -> list[float]:
+    """The cut-off times whose stroke at least ``share`` of the plausible rigs complete
+    (``done``: the share by time), or, if none, those the most of them complete."""
+    allowed = [t for t, d in done.items() if d >= share - 1e-9]
+    return allowed or [t for t, d in done.items() if d == max(done.values(), default=0.0)]

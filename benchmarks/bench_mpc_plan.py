@@ -15,9 +15,10 @@ clock). ``--stick-weights`` prices a stick-slip of the plausible rigs at that ma
 environment's ``w_stick`` (``RigModelPolicy(stick_weight=...)``; the truth's return, the figure,
 keeps the environment's), ``--stall-weights`` a stroke not completed so against ``w_stall``;
 ``--shifts`` moves the plan's cut that many control periods later
-(``RigModelPolicy(shift_periods=...)``). The plausible rigs are simulated once and every price
-applied to their figures (the objective is linear in the weights; tests/test_commission.py
-checks it against the planner's own returns). Reports the oracle fraction, stick-slip rate,
+(``RigModelPolicy(shift_periods=...)``), ``--min-completions`` lets it take only a cut at least
+that share of its plausible rigs complete (``RigModelPolicy(min_completion=...)``). The
+plausible rigs are simulated once and every price applied to their figures (the objective is
+linear in the weights; tests/test_commission.py checks it against the planner's own returns). Reports the oracle fraction, stick-slip rate,
 stalls and strokes not completed of every setting over all draws, the orifice law found against
 the truth's, and writes ``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``;
 ``--fits DIR`` keeps every commissioning fit there and reuses it.
@@ -70,6 +71,9 @@ def main(argv=None) -> dict:
                     help="a plausible rig's stall priced at this many times w_stall")
     ap.add_argument("--shifts", type=int, nargs="+", default=[0],
                     help="the plan's cut moved this many control periods later")
+    ap.add_argument("--min-completions", type=float, nargs="+", default=[1.0],
+                    help="the plan takes only cuts at least this share of its plausible rigs "
+                         "complete (mpc-rig's 1; 0: any cut)")
     ap.add_argument("--fits", default=None,
                     help="folder keeping the commissioning fits (reused when there)")
     ap.add_argument("--out", default="bench/mpc-plan", help="folder for the results")
@@ -86,12 +90,15 @@ def main(argv=None) -> dict:
             ap.error(f"--{name.replace('_', '-')} must be finite and >= 0")
     if min(args.shifts) < 0:
         ap.error("--shifts must be >= 0")
+    if not all(0 <= q <= 1 for q in args.min_completions):
+        ap.error("--min-completions must be shares in [0, 1]")
     from tqdm import tqdm
 
     from agents.evaluation.commissioning import commissioning_runs
     from agents.evaluation.run import oracle_fraction, run_policy
     from agents.evaluation.specs import evaluation_env_config, make_named_policy
     from agents.evaluation.suites import family_draws
+    from agents.mpc_rig import completing
     from pneugym.envs.cutoff import CutOffVectorEnv
     from pneugym.provenance import provenance
 
@@ -134,14 +141,17 @@ def main(argv=None) -> dict:
                 policy.set_model(model)
                 key = (law, tuple(policy.changes))
                 scored = plans[key] = plans.get(key) or _scores(policy, c, probe.rig, truth_j)
-                for w, ws, rule, m, sh in ((w, ws, r, m, sh) for w in args.stick_weights
-                                           for ws in args.stall_weights
-                                           for r in ("worst", "mean") for m in args.margins
-                                           for sh in args.shifts):
-                    mean = {t: j - (w - 1.0) * w_stick * n - (ws - 1.0) * w_stall * (1.0 - done)
-                            for t, (j, n, done, _) in scored.items()}
-                    t = _later(_pick(mean, policy.period, rule, m), sh, policy.period)
-                    k = _key(law, s, forms, rule, m, w, sh, ws)
+                done = {t: f[2] for t, f in scored.items()}
+                for w, ws, rule, m, sh, q in ((w, ws, r, m, sh, q) for w in args.stick_weights
+                                              for ws in args.stall_weights
+                                              for r in ("worst", "mean") for m in args.margins
+                                              for sh in args.shifts
+                                              for q in args.min_completions):
+                    mean = {t: j - (w - 1.0) * w_stick * n - (ws - 1.0) * w_stall * (1.0 - ok)
+                            for t, (j, n, ok, _) in scored.items()}
+                    t = _later(_pick(mean, policy.period, rule, m, completing(done, q)), sh,
+                               policy.period)
+                    k = _key(law, s, forms, rule, m, w, sh, ws, q)
                     _truth_at([t], policy, c, truth_j)  # (a shifted cut past the grid)
                     d["cuts"][k] = t
                     d["returns"][k], d["sticks"][k], d["completed"][k], d["stalls"][k] = truth_j[t]
@@ -174,9 +184,10 @@ def main(argv=None) -> dict:
 
 
 def _key(law: str, spread: float, forms: bool, rule: str, margin: int, w: float = 1.0,
-         shift: int = 0, ws: float = 1.0) -> str:
+         shift: int = 0, ws: float = 1.0, q: float = 0.0) -> str:
     priced = f", stick weight {w:g}" if w != 1.0 else ""
     priced += f", stall weight {ws:g}" if ws != 1.0 else ""
+    priced += f", completed by >= {q:g}" if q != 1.0 else ""
     later = f", later by {shift}" if shift else ""
     return (f"{law}, spread {spread:g}{', forms' if forms else ''}, {rule} within {margin}"
             f"{priced}{later}")
@@ -238,10 +249,10 @@ def _scores(policy, c, base, truth_j: dict) -> dict:
     return {t: tuple(np.mean([per[j][t] for j in per], axis=0)) for t in grid}
 
 
-def _pick(mean: dict, period: float, rule: str, margin: int) -> float:
+def _pick(mean: dict, period: float, rule: str, margin: int, allowed: list) -> float:
     from agents.mpc_rig import RULES
 
-    return RULES[rule](mean, margin * period) if mean else math.inf
+    return RULES[rule](mean, margin * period, allowed) if mean else math.inf
 
 
 def _plot(table: dict, path: Path) -> None:

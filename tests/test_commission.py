@@ -14,7 +14,7 @@ import pytest
 from agents.base import run_first_episodes
 from agents.evaluation.commissioning import DATASHEET_FIELDS, rig_file, rig_groups
 from agents.evaluation.specs import evaluation_env_config
-from agents.mpc_rig import RigModelPolicy
+from agents.mpc_rig import RigModelPolicy, completing
 from agents.oracle import OraclePolicy
 from pneugym.commission import (ORIFICE_MODELS, Commissioned, commission,
                                 commissioning_protocol, delay_guess, fitted_params, main,
@@ -149,6 +149,34 @@ def test_mpc_rig_prices_stick_slip_and_moves_its_cut_as_told(model):
         RigModelPolicy.for_env(env, stall_weight=math.inf)
     with pytest.raises(ValueError, match="shift_periods"):
         RigModelPolicy.for_env(env, shift_periods=-1)
+
+
+def test_mpc_rig_takes_only_cuts_its_plausible_rigs_complete(model, monkeypatch):
+    """``min_completion``, a chance constraint: the plan takes the best cut (the rule's window
+    over every tried cut) among those at least that share of its plausible rigs complete.
+    Planner figures stubbed: the return peaks at a 0.3 s cut, plausible rig j completes a
+    stroke cut from 0.4 + 0.1 j s on (never cutting, always)."""
+    env = CutOffVectorEnv(num_envs=1, autoreset=False, rig=TRUTH, observe_rig=True)
+
+    def figures(conds, cands, names):
+        assert tuple(names) == ("objective", "completed")
+        return {key: {t: (-abs(t - 0.3) if math.isfinite(t) else -5.0,
+                          float(t >= 0.4 + 0.1 * key[1] - 1e-9)) for t in ts}
+                for key, ts in cands.items()}
+
+    cuts = {}
+    for q in (0.0, 0.5, 1.0):
+        pol = RigModelPolicy.for_env(env, model=model, members=2, min_completion=q)
+        monkeypatch.setattr(pol.planner, "score_figures", figures)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert len(pol.members_at(2e5, 25.0)[0]) == 2  # both plausible rigs plan
+            cuts[q] = pol.plan([(2e5, 25.0)])[(2e5, 25.0)]
+    assert cuts == pytest.approx({0.0: 0.3, 0.5: 0.4, 1.0: 0.5})
+    assert completing({0.1: 0.0, 0.2: 0.5, math.inf: 1.0}, 0.5) == [0.2, math.inf]
+    assert completing({0.1: 0.0, 0.2: 0.25}, 0.5) == [0.2]  # none reaches it: the most
+    with pytest.raises(ValueError, match="min_completion"):
+        RigModelPolicy.for_env(env, min_completion=1.5)
 
 
 def test_mpc_rig_decides_as_in_the_environment(model):

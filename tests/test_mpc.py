@@ -85,6 +85,22 @@ def test_expected_best_takes_the_widest_good_window_not_a_lone_peak():
     assert expected_best({math.inf: -1.0, p: -2.0}, p) == math.inf
 
 
+def test_rules_choose_among_the_allowed_cuts_only():
+    """``allowed`` restricts the choice, not the windows: the best allowed cut by its window
+    over every tried cut; an empty choice is refused."""
+    p = PERIOD
+    returns = {k * p: j for k, j in enumerate([-0.1, -0.2, -3.0, -0.3, -0.25])}
+    returns[math.inf] = -0.28
+    later = [3 * p, 4 * p, math.inf]
+    assert expected_best(returns, 0.0) == 0.0
+    assert expected_best(returns, 0.0, later) == pytest.approx(4 * p)
+    assert robust_best(returns, 0.0, later) == pytest.approx(4 * p)
+    assert robust_best(returns, p, later) == math.inf  # 4p's window holds -0.3 < -0.28
+    assert expected_best(returns, p, later) == pytest.approx(4 * p)  # its mean -0.275
+    with pytest.raises(ValueError, match="no allowed"):
+        expected_best(returns, p, [])
+
+
 def test_fit_recovers_a_rig_from_its_stroke():
     """A stroke of a rig with a slower valve, more friction and a wider valve than the rig file
     says: the fit recovers the delay and reproduces the trace far better than the rig file."""
