@@ -18,10 +18,11 @@ keeps the environment's), ``--stall-weights`` a stroke not completed so against 
 (``RigModelPolicy(shift_periods=...)``), ``--min-completions`` lets it take only a cut at least
 that share of its plausible rigs complete (``RigModelPolicy(min_completion=...)``). The
 plausible rigs are simulated once and every price applied to their figures (the objective is
-linear in the weights; tests/test_commission.py checks it against the planner's own returns). Reports the oracle fraction, stick-slip rate,
-stalls and strokes not completed of every setting over all draws, the orifice law found against
-the truth's, and writes ``mpc_plan.json`` (every draw's cuts and figures) and ``mpc_plan.png``;
-``--fits DIR`` keeps every commissioning fit there and reuses it.
+linear in the weights; tests/test_commission.py checks it against the planner's own returns).
+Reports the oracle fraction, stick-slip rate, stalls and strokes not completed of every setting
+over all draws, the orifice law found against the truth's, and writes ``mpc_plan.json`` (every
+draw's cuts and figures) and ``mpc_plan.png``; ``--fits DIR`` keeps every commissioning fit
+there and reuses it.
 
 The plans here search every control period (``RigModelPolicy(coarse=1)``); ``mpc-rig`` searches
 every fourth, then every period around its three best, and took the same cuts on all 40
@@ -184,7 +185,7 @@ def main(argv=None) -> dict:
 
 
 def _key(law: str, spread: float, forms: bool, rule: str, margin: int, w: float = 1.0,
-         shift: int = 0, ws: float = 1.0, q: float = 0.0) -> str:
+         shift: int = 0, ws: float = 1.0, q: float = 1.0) -> str:
     priced = f", stick weight {w:g}" if w != 1.0 else ""
     priced += f", stall weight {ws:g}" if ws != 1.0 else ""
     priced += f", completed by >= {q:g}" if q != 1.0 else ""
