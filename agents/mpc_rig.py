@@ -224,7 +224,7 @@ class RigModelPolicy(TimedCutPolicy):
                         mean[k][tc] = float(np.mean([f[0] for f in figs]))
                         done[k][tc] = float(np.mean([f[1] for f in figs]))
                 # the search refines around the best cuts the plan may take
-                return {k: {tc: mean[k][tc] if done[k][tc] >= self.min_completion - 1e-9
+                return {k: {tc: mean[k][tc] if _completes(done[k][tc], self.min_completion)
                             else -math.inf for tc in cands[k]} for k in cands}
 
             for k in search_cuts(score, ranges, self.period, self.coarse):
@@ -237,5 +237,11 @@ class RigModelPolicy(TimedCutPolicy):
 def completing(done: Mapping[float, float], share: float) -> list[float]:
     """The cut-off times whose stroke at least ``share`` of the plausible rigs complete
     (``done``: the share by time), or, if none, those the most of them complete."""
-    allowed = [t for t, d in done.items() if d >= share - 1e-9]
+    allowed = [t for t, d in done.items() if _completes(d, share)]
     return allowed or [t for t, d in done.items() if d == max(done.values(), default=0.0)]
+
+
+def _completes(done: float, share: float) -> bool:
+    """Whether a completed share ``done`` reaches ``share`` (a mean of 0/1 figures: rounding
+    spared)."""
+    return done >= share - 1e-9
