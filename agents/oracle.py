@@ -89,10 +89,6 @@ class OraclePolicy(TimedCutPolicy):
             self._base_rig = CutOffVectorEnv(num_envs=1, **self.env_config).rig
         return self._base_rig
 
-    def _returns(self, conds: Sequence[Any], t_cuts: np.ndarray) -> np.ndarray:
-        """Return of each (conditions, cut-off time) pair, all in one batched run."""
-        return self._figures(conds, t_cuts)["objective"]
-
     def _figures(self, conds: Sequence[Any], t_cuts: np.ndarray) -> dict[str, np.ndarray]:
         """Final figures of each (conditions, cut-off time) pair, all in one batched run."""
         from pneugym.envs.cutoff import CutOffVectorEnv

@@ -184,14 +184,14 @@ def bench_oracle(n_conditions: int, seed: int) -> dict:
 
     pol = OraclePolicy.for_env(CutOffEnv())
     counted = {"episodes": 0}
-    inner = pol._returns
+    inner = pol._figures
 
     def counting(*args, **kwargs):
-        j = inner(*args, **kwargs)
-        counted["episodes"] += len(j)
-        return j
+        fig = inner(*args, **kwargs)
+        counted["episodes"] += len(fig["objective"])
+        return fig
 
-    pol._returns = counting
+    pol._figures = counting
     rng = np.random.default_rng(seed)
     conds = [PRESETS["randomized"].sample(rng) for _ in range(n_conditions)]
     pol.plan(PRESETS["thesis-2.5bar"].sample(rng))  # warm-up (compilation, caches)
