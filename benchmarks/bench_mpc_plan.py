@@ -82,6 +82,9 @@ def main(argv=None) -> dict:
                     help="least-squares starts per line model (default: mpc-rig's)")
     ap.add_argument("--commission-nfev", type=int, default=None,
                     help="evaluations per least-squares start (default: mpc-rig's)")
+    ap.add_argument("--commission-refit", type=int, default=None,
+                    help="more starts per line model where the fit's misfit is flagged "
+                         "(default: mpc-rig's)")
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
         ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
@@ -115,7 +118,8 @@ def main(argv=None) -> dict:
     policy.n_members = args.members
     opts = dict(policy.commission_options)
     opts.update({k: v for k, v in (("starts", args.commission_starts),
-                                   ("max_nfev", args.commission_nfev)) if v is not None})
+                                   ("max_nfev", args.commission_nfev),
+                                   ("refit_starts", args.commission_refit)) if v is not None})
     laws = {LAW_CHOICES[k]: LAWS[LAW_CHOICES[k]] for k in args.laws}
     settings = [(law, s, forms) for law in laws for s in args.spreads
                 for forms in (f == "on" for f in args.forms)]
@@ -133,7 +137,8 @@ def main(argv=None) -> dict:
             t0 = time.perf_counter()
             model = _fit(runs, law_models, opts, args.fits and Path(args.fits) / f"{g}-{law}")
             d["fits"][law] = {"form": [model.rig.line.model, model.rig.valve.flow_model],
-                              "misfit": model.misfit, "seconds": time.perf_counter() - t0,
+                              "misfit": model.misfit, "refitted": model.refitted,
+                              "seconds": time.perf_counter() - t0,
                               "alternatives": [[r.line.model, r.valve.flow_model, dv] for r, dv
                                                in zip(model.alternatives,
                                                       model.alternative_deltas)]}
@@ -156,18 +161,31 @@ def main(argv=None) -> dict:
                     _truth_at([t], policy, c, truth_j)  # (a shifted cut past the grid)
                     d["cuts"][k] = t
                     d["returns"][k], d["sticks"][k], d["completed"][k], d["stalls"][k] = truth_j[t]
+        d["stick_free_window"] = _window(truth_j, policy.period)
         draws.append(d)
     conv, orc = float(np.mean(ref["conventional"])), float(np.mean(ref["oracle"]))
     table = {k: oracle_fraction(float(np.mean([d["returns"][k] for d in draws])), conv, orc)
              for k in draws[0]["returns"]}
     sticks = {k: float(np.mean([d["sticks"][k] > 0 for d in draws])) for k in table}
-    sticks["oracle"] = float(np.mean([n > 0 for n in ref_sticks["oracle"]]))
+    for spec in ref_sticks:  # the oracle's, and the conventional stroke's (the rig as it is)
+        sticks[spec] = float(np.mean([n > 0 for n in ref_sticks[spec]]))
     stalls = {k: int(sum(d["stalls"][k] > 0 for d in draws)) for k in table}
     undone = {k: int(sum(not d["completed"][k] for d in draws)) for k in table}
     for k, f in sorted(table.items(), key=lambda kv: -kv[1]):
         print(f"{k:62s} oracle fraction {f:.3f}, stick-slip {100 * sticks[k]:.1f} %, "
               f"stalls {stalls[k]}, not completed {undone[k]}")
-    print(f"{'oracle':62s} stick-slip {100 * sticks['oracle']:.1f} %")
+    for spec in ref_sticks:
+        print(f"{spec:62s} stick-slip {100 * sticks[spec]:.1f} %")
+    for k in table:  # where a plan sticks and the oracle does not: how narrow was the way out?
+        over = [(d, g) for g, d in enumerate(draws) if d["sticks"][k] > 0
+                and ref_sticks["oracle"][g] == 0 and d["stick_free_window"]]
+        if over:
+            w = [d["stick_free_window"] for d, _ in over]
+            print(f"{k}: sticks where the oracle does not in {len(over)} draws (the conventional "
+                  f"stroke too in {sum(ref_sticks['conventional'][g] > 0 for _, g in over)}); the "
+                  f"truth's stick-free cuts there span {sorted(x['periods'] for x in w)} control "
+                  f"periods, a stroke not completed before them in "
+                  f"{sum(x['before'] == 'stall' for x in w)}")
     right = {law: sum(d["fits"][law]["form"][1] == d["truth_form"][1] for d in draws)
              for law in laws}
     for law, n in right.items():
@@ -222,6 +240,30 @@ def _fit(runs, law_models, opts: dict, where: Path | None):
     if where is not None:
         model.save(where)
     return model
+
+
+def _window(truth_j: dict, period: float) -> dict | None:
+    """The truth's stick-free cuts that complete the stroke around the best of them, on the
+    control-period grid of ``truth_j``: the first and last cut [s], their number of periods,
+    and what lies either side (``"stall"``: a stroke not completed, ``"stick"``, ``"edge"`` of
+    the grid); ``None`` if no such cut."""
+    ts = sorted(t for t in truth_j if math.isfinite(t) and abs(t / period - round(t / period))
+                < 1e-6)
+    free = [truth_j[t][1] == 0 and bool(truth_j[t][2]) for t in ts]
+    if not any(free):
+        return None
+    k = max((i for i, ok in enumerate(free) if ok), key=lambda i: truth_j[ts[i]][0])
+    lo, hi = k, k
+    while lo > 0 and free[lo - 1]:
+        lo -= 1
+    while hi < len(ts) - 1 and free[hi + 1]:
+        hi += 1
+
+    def side(i: int) -> str:
+        return "edge" if not 0 <= i < len(ts) else "stick" if truth_j[ts[i]][2] else "stall"
+
+    return {"first_s": ts[lo], "last_s": ts[hi], "periods": hi - lo + 1, "before": side(lo - 1),
+            "after": side(hi + 1)}
 
 
 def _num(v):

@@ -154,6 +154,8 @@ class Commissioned:
     alternative_misfits: list[float] = field(default_factory=list)
     #: each alternative's ``N_eff ln(SSR_form / SSR_best)`` (twice its log-likelihood deficit)
     alternative_deltas: list[float] = field(default_factory=list)
+    #: whether this fit came from the further starts of a refit (``commission(refit_starts=)``)
+    refitted: bool = False
 
     @property
     def misfit(self) -> float:
@@ -212,7 +214,7 @@ class Commissioned:
                 "alternatives": [r.to_dict() for r in self.alternatives],
                 "alternative_misfits": [float(v) for v in self.alternative_misfits],
                 "alternative_deltas": [float(v) for v in self.alternative_deltas],
-                "provenance": provenance()}
+                "refitted": bool(self.refitted), "provenance": provenance()}
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "commissioning") -> "Commissioned":
@@ -240,7 +242,8 @@ class Commissioned:
                        nrmse=dict(d.get("nrmse", {})), extras=list(d.get("extras", [])),
                        alternatives=[RigParams.from_dict(r) for r in d.get("alternatives", [])],
                        alternative_misfits=[float(v) for v in d.get("alternative_misfits", [])],
-                       alternative_deltas=[float(v) for v in d.get("alternative_deltas", [])])
+                       alternative_deltas=[float(v) for v in d.get("alternative_deltas", [])],
+                       refitted=bool(d.get("refitted", False)))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
@@ -290,7 +293,8 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
                *, starts: int = 2, max_nfev: int = 40, extras: bool = True,
                line_models: Sequence[str] | None = LINE_MODELS,
                orifice_models: Sequence[str] | None = None, seed: int = 0,
-               n_jobs: int = 1, max_samples: int = MAX_SAMPLES) -> Commissioned:
+               n_jobs: int = 1, max_samples: int = MAX_SAMPLES,
+               refit_starts: int = 0) -> Commissioned:
     """Fit the rig model to measured ``runs`` (objects, or files / folders of the measured-run
     format; ``base`` fills what their ``rig`` sections leave out). ``starts``: least-squares
     starts (the first at the rig file's values and the delay the runs show, the others drawn
@@ -300,10 +304,14 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
     (default ``None``: the stated one only; docs/policies.md says why). The best fit wins; the
     other forms the strokes cannot rule out (:data:`FORM_DELTA`) stay as
     :attr:`Commissioned.alternatives`. ``extras``: then try :data:`EXTRA_PARAMS` (kept if
-    significant, :data:`EXTRA_P`). Raises ``ValueError`` on no runs, runs of different rigs or
-    bad options."""
+    significant, :data:`EXTRA_P`). ``refit_starts``: if the finished fit's misfit exceeds
+    :data:`MISFIT_FLAG` (a wrong basin, as a fit far from the rig often is), this many more
+    starts per line model are drawn and fitted, and the whole fit finished again from all the
+    starts; the finished fit of lower SSR is kept (:attr:`Commissioned.refitted` says which).
+    Raises ``ValueError`` on no runs, runs of different rigs or bad options."""
     for name, v, lo in (("starts", starts, 1), ("max_nfev", max_nfev, 1),
-                        ("n_jobs", n_jobs, 1), ("max_samples", max_samples, 100)):
+                        ("n_jobs", n_jobs, 1), ("max_samples", max_samples, 100),
+                        ("refit_starts", refit_starts, 0)):
         if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
             raise ValueError(f"commission {name} = {v!r} must be an integer >= {lo}")
     runs = list(runs)
@@ -324,17 +332,22 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
     first = np.array([delay_guess(runs[0]) if p.path == "valve.delay_s" else
                       p.stated(stated) if not p.path.startswith("effects") else
                       (p.start or (p.lo, p.hi))[0] for p in params])
-    starts_u = [first] + [np.array([v if p.path == "valve.delay_s" else p.draw(rng)
-                                    for p, v in zip(params, first)]) for _ in range(starts - 1)]
+
+    def drawn(k: int) -> list[np.ndarray]:  # starts within the bounds, the delay at its guess
+        return [np.array([v if p.path == "valve.delay_s" else p.draw(rng)
+                          for p, v in zip(params, first)]) for _ in range(k)]
+
+    starts_u = [first] + drawn(starts - 1)
     form_rigs = {(m, o): [r.rig(base).with_(line={"model": m}, valve={"flow_model": o})
                           for r in runs] for m in lines for o in laws}
     form_bases = {f: [fixed_step(g, fast) for g in rigs] for f, rigs in form_rigs.items()}
-    jobs = [Job(prepared, form_bases[m, laws[0]], sigma, fast, _inside(s, fast), max_nfev)
-            for m in lines for s in starts_u]
-    which = [(m, laws[0]) for m in lines for _ in starts_u]
-    executor = Executor(n_jobs)
-    try:
-        results = executor.map(solve, jobs)
+
+    def first_fits(starts_u: list[np.ndarray]) -> tuple[list, list, list]:
+        jobs = [Job(prepared, form_bases[m, laws[0]], sigma, fast, _inside(s, fast), max_nfev)
+                for m in lines for s in starts_u]
+        return jobs, [(m, laws[0]) for m in lines for _ in starts_u], executor.map(solve, jobs)
+
+    def finished(jobs: list, which: list, results: list) -> Commissioned:
         # each line model's best fit, again with every other orifice law (from its values)
         prob = Problem(prepared, [], sigma, fast)
         again = []
@@ -343,11 +356,21 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
             for o in laws[1:]:
                 again.append(Job(prepared, form_bases[m, o], sigma, fast,
                                  _inside(prob.values(results[k][0]), fast), max_nfev))
-                which.append((m, o))
-        jobs += again
-        results += executor.map(solve, again)
-        return _finish(results, jobs, which, form_rigs, stated, prepared, sigma, params, runs,
-                       max_nfev, extras, executor)
+        which = which + [(m, o) for m in lines for o in laws[1:]]
+        return _finish(results + executor.map(solve, again), jobs + again, which, form_rigs,
+                       stated, prepared, sigma, params, runs, max_nfev, extras, executor)
+
+    executor = Executor(n_jobs)
+    try:
+        jobs, which, results = first_fits(starts_u)
+        model = finished(jobs, which, results)
+        if refit_starts and model.misfit > MISFIT_FLAG:  # a wrong basin: look further
+            jobs2, which2, results2 = first_fits(drawn(refit_starts))
+            if min(r[1] for r in results2) < min(r[1] for r in results):
+                again = finished(jobs + jobs2, which + which2, results + results2)
+                if again.ssr < model.ssr:
+                    model = replace(again, refitted=True)
+        return model
     finally:
         executor.close()
 
@@ -453,6 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--starts", type=int, default=2, help="least-squares starts (default 2)")
     ap.add_argument("--max-nfev", type=int, default=40,
                     help="least-squares iterations per start and restart (default 40)")
+    ap.add_argument("--refit-starts", type=int, default=0, metavar="N",
+                    help="if the fit's misfit exceeds 9, N more starts per line model, the "
+                         "better fit kept (default 0)")
     ap.add_argument("--jobs", type=int, default=1, help="processes for the starts (default 1)")
     ap.add_argument("--line-models", nargs="+", default=list(LINE_MODELS), choices=LINE_MODELS,
                     help="supply-line models to try; the best fit wins (default: both)")
@@ -486,6 +512,9 @@ def report_markdown(m: Commissioned) -> str:
         lines.append(f"- {run}: " + ", ".join(f"{k} {v:.4f}" for k, v in ch.items()))
     if m.extras:
         lines += ["", f"Kept beyond the base set: {', '.join(m.extras)}."]
+    if m.refitted:
+        lines += ["", f"Fitted again from further starts (the first ones ended above a misfit "
+                  f"of {MISFIT_FLAG:g}); this fit is the better one."]
     if m.alternatives:
         forms = ", ".join(f"{r.line.model!r} line with the {r.valve.flow_model!r} law (misfit "
                           f"{v:.2f})" for r, v in zip(m.alternatives, m.alternative_misfits))
@@ -495,8 +524,9 @@ def report_markdown(m: Commissioned) -> str:
     if not m.misfit <= MISFIT_FLAG:
         lines += ["", f"**The misfit exceeds {MISFIT_FLAG:g}**: the residuals are over three "
                   f"times the noise's. Check the runs and the rig file, and fit again with more "
-                  f"`--starts`. (`mpc-rig` still plans on it: on rig-family draws a high "
-                  f"misfit did not foretell a poor plan; docs/policies.md.)"]
+                  f"`--starts` (or `--refit-starts`). (`mpc-rig` still plans on it: on "
+                  f"rig-family draws a high misfit did not foretell a poor plan; "
+                  f"docs/policies.md.)"]
     return "\n".join(lines) + "\n"
 
 
@@ -540,7 +570,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         m = commission(runs, base, starts=a.starts, max_nfev=a.max_nfev,
                        extras=not a.no_extras, line_models=a.line_models,
                        orifice_models=a.orifice_models, seed=a.seed,
-                       n_jobs=a.jobs)
+                       n_jobs=a.jobs, refit_starts=a.refit_starts)
     except (ValueError, OSError) as exc:
         print(f"pneugym commission: {exc}", file=sys.stderr)
         return 2

@@ -292,6 +292,23 @@ def test_other_forms_the_strokes_cannot_rule_out_join_the_plausible_rigs(runs, m
         Commissioned.load(tmp_path)
 
 
+def test_a_fit_far_above_the_noise_is_refitted_from_further_starts(runs, monkeypatch):
+    import pneugym.commission as commissioning
+
+    kw = {"max_nfev": 2, "extras": False, "line_models": ["fd"], "seed": 3}
+    first = commission(runs, starts=1, **kw)
+    assert first.misfit > commissioning.MISFIT_FLAG and not first.refitted  # 2 evaluations
+    three = commission(runs, starts=3, **kw)  # the same starts as one and a refit's two
+    assert three.ssr < first.ssr  # (seed 3: a drawn start does better)
+    again = commission(runs, starts=1, refit_starts=2, **kw)
+    assert again.ssr == three.ssr and again.refitted
+    assert Commissioned.from_dict(again.to_dict()).refitted == again.refitted
+    monkeypatch.setattr(commissioning, "MISFIT_FLAG", math.inf)  # below the flag: no refit
+    assert commission(runs, starts=1, refit_starts=2, **kw).ssr == first.ssr
+    with pytest.raises(ValueError, match="refit_starts"):
+        commission(runs, refit_starts=-1)
+
+
 def test_the_fitted_parameters_stay_physical():
     ps = {p.path: p for p in fitted_params(KNOWN)}
     assert ps["cylinder.cushion_length_m"].hi * KNOWN.cylinder.cushion_length_m \
