@@ -185,7 +185,7 @@ def main(argv=None) -> dict:
                   f"stroke too in {sum(ref_sticks['conventional'][g] > 0 for _, g in over)}); the "
                   f"truth's stick-free cuts there span {sorted(x['periods'] for x in w)} control "
                   f"periods, a stroke not completed before them in "
-                  f"{sum(x['before'] == 'stall' for x in w)}")
+                  f"{sum(x['before'] == 'not completed' for x in w)}")
     right = {law: sum(d["fits"][law]["form"][1] == d["truth_form"][1] for d in draws)
              for law in laws}
     for law, n in right.items():
@@ -245,7 +245,7 @@ def _fit(runs, law_models, opts: dict, where: Path | None):
 def _window(truth_j: dict, period: float) -> dict | None:
     """The truth's stick-free cuts that complete the stroke around the best of them, on the
     control-period grid of ``truth_j``: the first and last cut [s], their number of periods,
-    and what lies either side (``"stall"``: a stroke not completed, ``"stick"``, ``"edge"`` of
+    and what lies either side (``"not completed"``, ``"stick"``: a stick-slip, ``"edge"`` of
     the grid); ``None`` if no such cut."""
     ts = sorted(t for t in truth_j if math.isfinite(t) and abs(t / period - round(t / period))
                 < 1e-6)
@@ -260,7 +260,8 @@ def _window(truth_j: dict, period: float) -> dict | None:
         hi += 1
 
     def side(i: int) -> str:
-        return "edge" if not 0 <= i < len(ts) else "stick" if truth_j[ts[i]][2] else "stall"
+        return ("edge" if not 0 <= i < len(ts) else "stick" if truth_j[ts[i]][2]
+                else "not completed")
 
     return {"first_s": ts[lo], "last_s": ts[hi], "periods": hi - lo + 1, "before": side(lo - 1),
             "after": side(hi + 1)}
