@@ -40,6 +40,8 @@ def main(argv=None) -> dict:
                     help="mpc-rig: least-squares starts per line model of each rig's fit")
     ap.add_argument("--commission-nfev", type=int, default=None,
                     help="mpc-rig: evaluations per least-squares start")
+    ap.add_argument("--commission-refit", type=int, default=None,
+                    help="mpc-rig: more starts per line model where a fit's misfit is flagged")
     ap.add_argument("--plan", nargs=3, metavar=("SPREAD", "RULE", "MARGIN"), default=None,
                     help="mpc-rig: the plan's spread of plausible rigs, rule (worst, mean) and "
                          "margin in control periods (default: RigModelPolicy's, 2 mean 1; the "
@@ -72,7 +74,8 @@ def main(argv=None) -> dict:
     conds = family_draws(args.seed, args.episodes)
     names = list(dict.fromkeys(["conventional", *args.policies, "oracle"]))
     commission = {k: v for k, v in (("starts", args.commission_starts),
-                                    ("max_nfev", args.commission_nfev)) if v is not None}
+                                    ("max_nfev", args.commission_nfev),
+                                    ("refit_starts", args.commission_refit)) if v is not None}
     records, wall = {}, {}
     for spec in names:
         name, pol = make_named_policy(spec, probe)

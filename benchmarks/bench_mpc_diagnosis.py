@@ -38,6 +38,9 @@ def main(argv=None) -> dict:
                     help="least-squares starts per line model (default: mpc-rig's)")
     ap.add_argument("--commission-nfev", type=int, default=None,
                     help="evaluations per least-squares start (default: mpc-rig's)")
+    ap.add_argument("--commission-refit", type=int, default=None,
+                    help="more starts per line model where a fit's misfit is flagged "
+                         "(default: mpc-rig's)")
     args = ap.parse_args(argv)
     if min(args.draws) < 0 or not args.grid > 0:
         ap.error("--draws must be >= 0 and --grid > 0")
@@ -59,7 +62,8 @@ def main(argv=None) -> dict:
     base = probe.rig
     _, policy = make_named_policy("mpc-rig", probe)
     policy.commission_options.update({k: v for k, v in (("starts", args.commission_starts),
-                                                        ("max_nfev", args.commission_nfev))
+                                                        ("max_nfev", args.commission_nfev),
+                                                        ("refit_starts", args.commission_refit))
                                       if v is not None})
     truth_planner = OraclePolicy(probe.observation_layout(), policy.env_config)
     out: dict[str, dict] = {}

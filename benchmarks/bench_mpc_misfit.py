@@ -45,6 +45,9 @@ def main(argv=None) -> dict:
                     help="least-squares starts per line model (default: mpc-rig's)")
     ap.add_argument("--commission-nfev", type=int, default=None,
                     help="evaluations per least-squares start (default: mpc-rig's)")
+    ap.add_argument("--commission-refit", type=int, default=None,
+                    help="more starts per line model where a fit's misfit is flagged "
+                         "(default: mpc-rig's)")
     args = ap.parse_args(argv)
     if args.episodes < 1 or min(args.limits) < args.refit_above:
         ap.error("--episodes must be >= 1 and every --limits >= --refit-above")
@@ -70,7 +73,8 @@ def main(argv=None) -> dict:
     _, policy = make_named_policy("mpc-rig", probe)
     opts = dict(policy.commission_options)
     opts.update({k: v for k, v in (("starts", args.commission_starts),
-                                   ("max_nfev", args.commission_nfev)) if v is not None})
+                                   ("max_nfev", args.commission_nfev),
+                                   ("refit_starts", args.commission_refit)) if v is not None})
     refit = {**opts, "starts": 3 * opts["starts"], "max_nfev": int(1.5 * opts["max_nfev"]),
              "seed": opts.get("seed", 0) + 1}
     draws = []

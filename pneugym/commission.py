@@ -7,9 +7,10 @@ leaks, the chambers' heat exchange, a transducer lag, friction at low speed) sho
 breakaway, motion, the cushion) and a stroke *cut off on arrival and held* (the trapped air:
 leaks, heat). :func:`commission` fits them through the plant with the discrepancy workflow's
 machinery (:class:`~pneugym.discrepancy.fit.Problem`, :class:`~pneugym.discrepancy.candidates.
-FitParam`, multi-start ``least_squares``) and returns a :class:`Commissioned` model: the fitted
-rig and the fit's uncertainty (Laplace approximation, inflated for autocorrelated residuals), from
-which a planner draws plausible rigs (:meth:`Commissioned.members`).
+FitParam`, multi-start ``least_squares``, more starts where the fit stays far from the strokes)
+and returns a :class:`Commissioned` model: the fitted rig and the fit's uncertainty (Laplace
+approximation, inflated for autocorrelated residuals), from which a planner draws plausible rigs
+(:meth:`Commissioned.members`).
 
 The discrepancy workflow names an effect only when the evidence demands it (diagnosis); this fit
 keeps whatever predicts the strokes better (prediction). Units are SI, pressures absolute inside
@@ -476,9 +477,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--starts", type=int, default=2, help="least-squares starts (default 2)")
     ap.add_argument("--max-nfev", type=int, default=40,
                     help="least-squares iterations per start and restart (default 40)")
-    ap.add_argument("--refit-starts", type=int, default=0, metavar="N",
+    ap.add_argument("--refit-starts", type=int, default=4, metavar="N",
                     help="if the fit's misfit exceeds 9, N more starts per line model, the "
-                         "better fit kept (default 0)")
+                         "better fit kept (default 4, as mpc-rig's; 0: none)")
     ap.add_argument("--jobs", type=int, default=1, help="processes for the starts (default 1)")
     ap.add_argument("--line-models", nargs="+", default=list(LINE_MODELS), choices=LINE_MODELS,
                     help="supply-line models to try; the best fit wins (default: both)")
@@ -524,9 +525,8 @@ def report_markdown(m: Commissioned) -> str:
     if not m.misfit <= MISFIT_FLAG:
         lines += ["", f"**The misfit exceeds {MISFIT_FLAG:g}**: the residuals are over three "
                   f"times the noise's. Check the runs and the rig file, and fit again with more "
-                  f"`--starts` (or `--refit-starts`). (`mpc-rig` still plans on it: on "
-                  f"rig-family draws a high misfit did not foretell a poor plan; "
-                  f"docs/policies.md.)"]
+                  f"`--starts` (or `--refit-starts`). `mpc-rig` still plans on it "
+                  f"(docs/policies.md)."]
     return "\n".join(lines) + "\n"
 
 

@@ -347,13 +347,13 @@ def test_evaluate_runs_mpc_rig_with_a_commissioning_per_rig(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = evaluate(["mpc-rig"], ["nominal"], 1, 1_000_000, progress=False,
-                       commission={"starts": 1, "max_nfev": 3})
+                       commission={"starts": 1, "max_nfev": 3, "refit_starts": 1})
     s = res["suites"]["nominal"]["policies"]["mpc-rig"]
     assert s["episodes"] == 2 and math.isfinite(s["return_mean"])
     assert ["conventional", "end_stroke_cutoff"] in [r for r, _ in seen]
     ep = res["suites"]["nominal"]["episodes"][-3]  # mpc-rig's (the oracle's come last)
     assert ep["policy"] == "mpc-rig" and ep["commission_misfit"] > 0
-    assert res["config"]["commission"] == {"starts": 1, "max_nfev": 3}
+    assert res["config"]["commission"] == {"starts": 1, "max_nfev": 3, "refit_starts": 1}
 
 
 def test_a_rig_of_a_suite_runs_as_a_task_of_its_own_with_the_same_records():
@@ -366,7 +366,8 @@ def test_a_rig_of_a_suite_runs_as_a_task_of_its_own_with_the_same_records():
     eps = [(f"{r}/2.5bar-10kg", Conditions(supply_pressure_gauge_pa=2.5e5, load_mass_kg=10.0,
                                            rig_changes=rigs[r], position_noise_m=3e-5,
                                            pressure_noise_pa=400.0)) for r in list(rigs)[:2]]
-    fast = {"starts": 1, "max_nfev": 2, "extras": False, "line_models": None, "n_jobs": 1}
+    fast = {"starts": 1, "max_nfev": 2, "extras": False, "line_models": None, "n_jobs": 1,
+            "refit_starts": 1}
     args = dict(suite="transfer", episodes=1, seed=7, env_config=evaluation_env_config({}),
                 eps=eps, commission=fast)
     assert _per_rig_tasks("gaslaw", eps) == [None] and _per_rig_tasks("mpc-rig", eps[:1]) == [None]

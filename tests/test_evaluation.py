@@ -122,6 +122,9 @@ def test_seed_runs_and_out_are_checked_before_any_work(tmp_path, monkeypatch, ca
     with pytest.raises(SystemExit):
         cli.main(["--policies", "gaslaw", "--seed", "-1", "--out", str(tmp_path)])
     assert "--seed -1: episode seeds must be integers from 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["--policies", "mpc-rig", "--commission-refit", "-1", "--out", str(tmp_path)])
+    assert "--commission-refit -1: must be >= 0" in capsys.readouterr().err
     afile = tmp_path / "afile"
     afile.write_text("x")
     with pytest.raises(SystemExit):

@@ -75,6 +75,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--commission-nfev", type=int, default=None, metavar="N",
                     help="mpc-rig: iterations per start of each rig's commissioning fit "
                          "(default 40)")
+    ap.add_argument("--commission-refit", type=int, default=None, metavar="N",
+                    help="mpc-rig: more starts per line model where a rig's fit ends above a "
+                         "misfit of 9 (default 4; 0: none)")
     ap.add_argument("--points", nargs="+", default=None, metavar="BAR:KG",
                     help="the points suite's operating points, supply (bar gauge) and load "
                          "(kg), e.g. --points 4:20 6:40 (default the transfer suite's: 1.5:5 "
@@ -112,6 +115,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                     ("--commission-nfev", args.commission_nfev)):
         if v is not None and v < 1:
             ap.error(f"{flag} {v}: must be >= 1")
+    if args.commission_refit is not None and args.commission_refit < 0:
+        ap.error(f"--commission-refit {args.commission_refit}: must be >= 0")
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1 (episodes per condition cell)")
     if not 0 <= args.seed < 2 ** 63:
@@ -141,7 +146,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                        preloaded=preloaded, progress=progress, workers=args.workers,
                        ray_address=args.ray_address, commission={
                            k: v for k, v in (("starts", args.commission_starts),
-                                             ("max_nfev", args.commission_nfev))
+                                             ("max_nfev", args.commission_nfev),
+                                             ("refit_starts", args.commission_refit))
                            if v is not None}, points=points)
     print_table(results)
     write_outputs(results, args.out)
