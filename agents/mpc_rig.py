@@ -5,7 +5,8 @@ makes two recorded strokes (:func:`pneugym.commission.commissioning_protocol`: a
 one, one cut off on arrival and held) and :func:`pneugym.commission.commission` fits a model of
 the rig to them: valve delay and areas, friction, cushions, leaks, a transducer lag, the
 supply line's model (and heat exchange and Stribeck friction where they are significant), with
-the fit's uncertainty. At the start of every stroke
+the fit's uncertainty; a fit that stays far from the strokes (a wrong basin) is fitted again
+from more starts (``COMMISSION_OPTIONS``). At the start of every stroke
 the policy reads the operating point it is told (the supply set-point and the payload, as every
 policy is) and plans on the model: it runs the plant ahead for every cut-off time (the oracle's
 search, :func:`agents.oracle.search_cuts`) on ``members`` plausible rigs (the fitted one and
