@@ -20,7 +20,7 @@ import json
 import time
 from pathlib import Path
 
-from common import ROOT  # noqa: F401  (the checkout on sys.path)
+from common import ROOT, add_commission_args, commission_overrides  # noqa: F401
 
 DEFAULT_POLICIES = ("endstroke", "gaslaw", "gaslaw-rig", "mpc")
 
@@ -36,12 +36,7 @@ def main(argv=None) -> dict:
                     help="seed of the draws (default 4,000,000: held out; 3,000,000 was the "
                          "validation set the settings of mpc were chosen on)")
     ap.add_argument("--out", default="bench/mpc", help="folder for the results")
-    ap.add_argument("--commission-starts", type=int, default=None,
-                    help="mpc-rig: least-squares starts per line model of each rig's fit")
-    ap.add_argument("--commission-nfev", type=int, default=None,
-                    help="mpc-rig: evaluations per least-squares start")
-    ap.add_argument("--commission-refit", type=int, default=None,
-                    help="mpc-rig: more starts per line model where a fit's misfit is flagged")
+    add_commission_args(ap)
     ap.add_argument("--plan", nargs=3, metavar=("SPREAD", "RULE", "MARGIN"), default=None,
                     help="mpc-rig: the plan's spread of plausible rigs, rule (worst, mean) and "
                          "margin in control periods (default: RigModelPolicy's, 2 mean 1; the "
@@ -73,9 +68,7 @@ def main(argv=None) -> dict:
     probe = CutOffVectorEnv(num_envs=1, **cfg)
     conds = family_draws(args.seed, args.episodes)
     names = list(dict.fromkeys(["conventional", *args.policies, "oracle"]))
-    commission = {k: v for k, v in (("starts", args.commission_starts),
-                                    ("max_nfev", args.commission_nfev),
-                                    ("refit_starts", args.commission_refit)) if v is not None}
+    commission = commission_overrides(args)
     records, wall = {}, {}
     for spec in names:
         name, pol = make_named_policy(spec, probe)

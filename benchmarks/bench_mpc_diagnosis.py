@@ -22,7 +22,7 @@ import json
 import math
 from pathlib import Path
 
-from common import ROOT  # noqa: F401  (the checkout on sys.path)
+from common import ROOT, add_commission_args, commission_overrides  # noqa: F401
 
 
 def main(argv=None) -> dict:
@@ -34,13 +34,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=4_000_000, help="bench_mpc.py's --seed")
     ap.add_argument("--grid", type=float, default=0.025, help="cut-off grid step [s]")
     ap.add_argument("--out", default="bench/mpc-diagnosis", help="folder for the results")
-    ap.add_argument("--commission-starts", type=int, default=None,
-                    help="least-squares starts per line model (default: mpc-rig's)")
-    ap.add_argument("--commission-nfev", type=int, default=None,
-                    help="evaluations per least-squares start (default: mpc-rig's)")
-    ap.add_argument("--commission-refit", type=int, default=None,
-                    help="more starts per line model where a fit's misfit is flagged "
-                         "(default: mpc-rig's)")
+    add_commission_args(ap)
     args = ap.parse_args(argv)
     if min(args.draws) < 0 or not args.grid > 0:
         ap.error("--draws must be >= 0 and --grid > 0")
@@ -61,10 +55,7 @@ def main(argv=None) -> dict:
     conds = family_draws(args.seed, max(args.draws) + 1)  # the draws of bench_mpc.py
     base = probe.rig
     _, policy = make_named_policy("mpc-rig", probe)
-    policy.commission_options.update({k: v for k, v in (("starts", args.commission_starts),
-                                                        ("max_nfev", args.commission_nfev),
-                                                        ("refit_starts", args.commission_refit))
-                                      if v is not None})
+    policy.commission_options.update(commission_overrides(args))
     truth_planner = OraclePolicy(probe.observation_layout(), policy.env_config)
     out: dict[str, dict] = {}
     for g in args.draws:

@@ -24,7 +24,7 @@ import json
 import math
 from pathlib import Path
 
-from common import ROOT  # noqa: F401  (the checkout on sys.path)
+from common import ROOT, add_commission_args, commission_overrides  # noqa: F401
 
 BASELINES = ("conventional", "endstroke", "gaslaw-rig", "oracle")
 
@@ -41,13 +41,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--limits", type=float, nargs="+", default=[4.0, 9.0, 25.0, 100.0],
                     help="misfit limits the guards are scored at (each >= --refit-above)")
     ap.add_argument("--out", default="bench/mpc-misfit", help="folder for the results")
-    ap.add_argument("--commission-starts", type=int, default=None,
-                    help="least-squares starts per line model (default: mpc-rig's)")
-    ap.add_argument("--commission-nfev", type=int, default=None,
-                    help="evaluations per least-squares start (default: mpc-rig's)")
-    ap.add_argument("--commission-refit", type=int, default=None,
-                    help="more starts per line model where a fit's misfit is flagged "
-                         "(default: mpc-rig's)")
+    add_commission_args(ap)
     args = ap.parse_args(argv)
     if args.episodes < 1 or min(args.limits) < args.refit_above:
         ap.error("--episodes must be >= 1 and every --limits >= --refit-above")
@@ -72,9 +66,7 @@ def main(argv=None) -> dict:
         base[spec] = [float(v) for v in out["objective"]]
     _, policy = make_named_policy("mpc-rig", probe)
     opts = dict(policy.commission_options)
-    opts.update({k: v for k, v in (("starts", args.commission_starts),
-                                   ("max_nfev", args.commission_nfev),
-                                   ("refit_starts", args.commission_refit)) if v is not None})
+    opts.update(commission_overrides(args))
     refit = {**opts, "starts": 3 * opts["starts"], "max_nfev": int(1.5 * opts["max_nfev"]),
              "seed": opts.get("seed", 0) + 1}
     draws = []

@@ -42,7 +42,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import ROOT  # noqa: F401  (the checkout on sys.path)
+from common import ROOT, add_commission_args, commission_overrides  # noqa: F401
 
 LAWS = {"stated law": None, "both laws": ("thesis", "iso6358")}
 LAW_CHOICES = {"stated": "stated law", "both": "both laws"}
@@ -78,13 +78,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--fits", default=None,
                     help="folder keeping the commissioning fits (reused when there)")
     ap.add_argument("--out", default="bench/mpc-plan", help="folder for the results")
-    ap.add_argument("--commission-starts", type=int, default=None,
-                    help="least-squares starts per line model (default: mpc-rig's)")
-    ap.add_argument("--commission-nfev", type=int, default=None,
-                    help="evaluations per least-squares start (default: mpc-rig's)")
-    ap.add_argument("--commission-refit", type=int, default=None,
-                    help="more starts per line model where the fit's misfit is flagged "
-                         "(default: mpc-rig's)")
+    add_commission_args(ap)
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
         ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
@@ -117,9 +111,7 @@ def main(argv=None) -> dict:
     _, policy = make_named_policy("mpc-rig", probe)
     policy.n_members = args.members
     opts = dict(policy.commission_options)
-    opts.update({k: v for k, v in (("starts", args.commission_starts),
-                                   ("max_nfev", args.commission_nfev),
-                                   ("refit_starts", args.commission_refit)) if v is not None})
+    opts.update(commission_overrides(args))
     laws = {LAW_CHOICES[k]: LAWS[LAW_CHOICES[k]] for k in args.laws}
     settings = [(law, s, forms) for law in laws for s in args.spreads
                 for forms in (f == "on" for f in args.forms)]

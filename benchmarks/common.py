@@ -30,6 +30,29 @@ GOAL_SCIPY_RATIO = 50.0
 
 
 # ------------------------------------------------------------------------------------------
+# commissioning options (mpc-rig's benchmarks)
+# ------------------------------------------------------------------------------------------
+def add_commission_args(ap) -> None:
+    """``--commission-starts``, ``--commission-nfev`` and ``--commission-refit`` on parser ``ap``:
+    the commissioning fit's options, each ``mpc-rig``'s when not given."""
+    ap.add_argument("--commission-starts", type=int, default=None,
+                    help="least-squares starts per line model (default: mpc-rig's)")
+    ap.add_argument("--commission-nfev", type=int, default=None,
+                    help="evaluations per least-squares start (default: mpc-rig's)")
+    ap.add_argument("--commission-refit", type=int, default=None,
+                    help="more starts per line model where a fit's misfit is flagged "
+                         "(default: mpc-rig's)")
+
+
+def commission_overrides(args) -> dict:
+    """The commissioning options given on the command line (:func:`add_commission_args`), as
+    :func:`pneugym.commission.commission`'s keywords."""
+    return {k: v for k, v in (("starts", args.commission_starts),
+                              ("max_nfev", args.commission_nfev),
+                              ("refit_starts", args.commission_refit)) if v is not None}
+
+
+# ------------------------------------------------------------------------------------------
 # timing
 # ------------------------------------------------------------------------------------------
 def timeit(fn, setup=None, repeats=11, warmup=1):
