@@ -40,7 +40,7 @@ from pneugym.envs.rollout import keep_traces
 from pneugym.params import RigParams
 from pneugym.plant import RigWarning, SimulationError
 
-from .oracle import OraclePolicy, TimedCutPolicy, search_cuts
+from .oracle import OraclePolicy, TimedCutPolicy, search_cuts, settle_windows
 
 #: The fitted quantities: (name, low, high, log-scaled). Areas are scales on the rig file's.
 FITTED = (("valve delay [s]", 0.01, 0.45, False), ("static friction [N]", 100.0, 800.0, False),
@@ -225,8 +225,10 @@ class ModelPredictivePolicy(TimedCutPolicy):
                         for tc in cands[i]} for i in cands}
 
         scores = search_cuts(score, ranges, self.period, self.planner.coarse)
-        for i, js in scores.items():
-            self.t_cut_s[i] = robust_best(js, self.margin * self.period)
+        for i, t in settle_windows(score, scores,
+                                   lambda i: robust_best(scores[i], self.margin * self.period),
+                                   ranges, self.period, self.margin).items():
+            self.t_cut_s[i] = t
 
 
 #: the rig quantities a stroke does not show before the cut: the plan averages over draws of them

@@ -13,7 +13,8 @@ search, :func:`agents.oracle.search_cuts`) on ``members`` plausible rigs (the fi
 draws from the fit's uncertainty at twice its standard deviations,
 :meth:`~pneugym.commission.Commissioned.members`), averages the return over them and cuts at the
 time whose mean average within ``margin_periods`` (one control period) either side is best
-(:func:`agents.mpc.expected_best`): a cut on the edge of a stick-slip or a stall, which the model
+(:func:`agents.mpc.expected_best`, every period of that window tried:
+:func:`agents.oracle.settle_windows`): a cut on the edge of a stick-slip or a stall, which the model
 may misplace by a few ms, is given up for a little air (issue 12, part 5). It takes only a cut
 whose stroke every plausible rig completes (``min_completion``, a chance constraint): on a fit
 far from the rig every completing stroke may stick, and a stroke that never completes would
@@ -39,7 +40,7 @@ from pneugym.plant import RigWarning, SimulationError
 from pneugym.rigfile import rig_fields
 
 from .mpc import expected_best, robust_best
-from .oracle import OraclePolicy, TimedCutPolicy, search_cuts
+from .oracle import OraclePolicy, TimedCutPolicy, search_cuts, settle_windows
 
 #: how the evaluation commissions a model per rig (:func:`pneugym.commission.commission`'s
 #: options; ``pneugym evaluate --commission-starts/--commission-nfev/--commission-refit`` set
@@ -82,8 +83,8 @@ class RigModelPolicy(TimedCutPolicy):
     completed priced so against ``w_stall``; ``shift_periods``: the chosen cut moved this many
     control periods later; ``min_completion``: a chance constraint, the plan only takes a cut
     whose stroke at least this share of the plausible rigs complete (default 1: all of them;
-    0: any cut; never cutting, which every plausible rig planned on completes, always
-    qualifies; :func:`completing`). The observation must hold the payload
+    0: any cut; never cutting qualifies wherever every plausible rig's conventional stroke
+    arrives within the episode's time limit; :func:`completing`). The observation must hold the payload
     (``observe_rig=True``, as every evaluation has)."""
 
     name = "mpc-rig"
@@ -231,9 +232,13 @@ class RigModelPolicy(TimedCutPolicy):
                 return {k: {tc: mean[k][tc] if _completes(done[k][tc], self.min_completion)
                             else -math.inf for tc in cands[k]} for k in cands}
 
-            for k in search_cuts(score, ranges, self.period, self.coarse):
-                t = RULES[self.rule](mean[k], self.margin * self.period,
-                                     completing(done[k], self.min_completion))
+            def pick(k: int) -> float:
+                return RULES[self.rule](mean[k], self.margin * self.period,
+                                        completing(done[k], self.min_completion))
+
+            scores = search_cuts(score, ranges, self.period, self.coarse)
+            for k, t in settle_windows(score, scores, pick, ranges, self.period,
+                                       self.margin).items():
                 self._plans[points[k]] = t + self.shift * self.period  # (inf stays inf)
         return {p: self._plans[p] for p in points}
 

@@ -37,6 +37,36 @@ def search_cuts(score: Callable[[dict], dict], ranges: Mapping[Any, tuple[int, i
     return scores
 
 
+def settle_windows(score: Callable[[dict], dict], scores: dict[Any, dict[float, float]],
+                   pick: Callable[[Any], float], ranges: Mapping[Any, tuple[int, int]],
+                   period: float, margin: int) -> dict[Any, float]:
+    """The cut ``pick(key)`` chooses for every case of a :func:`search_cuts` search (``scores``,
+    updated in place) once every control step of its range within ``margin`` steps of that cut
+    has been tried: a rule that judges a cut by its neighbours (the mean or worst return within
+    a window) would otherwise judge a coarse-grid cut by itself alone. Untried steps are scored
+    with ``score`` (batched over the cases) and every case that had some chooses again, until
+    none is missing."""
+    chosen: dict[Any, float] = {}
+    todo = list(scores)
+    while todo:
+        missing: dict[Any, list[float]] = {}
+        for key in todo:
+            t = chosen[key] = pick(key)
+            if margin <= 0 or not math.isfinite(t):
+                continue
+            k, (k0, k1) = int(round(t / period)), ranges[key]
+            tried = {round(s / period) for s in scores[key] if math.isfinite(s)}
+            need = [j * period for j in range(max(k0, k - margin), min(k1, k + margin) + 1)
+                    if j not in tried]
+            if need:
+                missing[key] = need
+        if missing:
+            for key, js in score(missing).items():
+                scores[key].update(js)
+        todo = list(missing)
+    return chosen
+
+
 class TimedCutPolicy(Policy):
     """Cuts the supply from time ``t_cut_s`` on (one value, or one per observation row;
     ``inf`` = never)."""

@@ -85,6 +85,43 @@ def test_expected_best_takes_the_widest_good_window_not_a_lone_peak():
     assert expected_best({math.inf: -1.0, p: -2.0}, p) == math.inf
 
 
+@pytest.mark.parametrize("rule", [expected_best, robust_best])
+def test_a_coarse_search_judges_the_chosen_cut_by_its_whole_window(rule):
+    """Good cuts with rough neighbours at every fourth step, and a lone good cut between two
+    stick-slips: the coarse grid never tries the stick-slips, so without settling the window the
+    rule would take the lone cut. Settled, the choice is the exhaustive search's."""
+    from agents.oracle import search_cuts, settle_windows
+
+    j = {k: -1.0 for k in range(33)}
+    j.update({k: -0.1 for k in (8, 12, 16)})
+    j.update({k: -0.3 for k in (7, 9, 11, 13, 15, 17)})
+    j[24] = -0.15
+    calls = []
+
+    def score(cands):
+        calls.append({key: len(ts) for key, ts in cands.items()})
+        return {key: {t: (j[round(t / PERIOD)] if math.isfinite(t) else -2.0) for t in ts}
+                for key, ts in cands.items()}
+
+    def chosen(coarse, settle):
+        scores = search_cuts(score, {0: (0, 32)}, PERIOD, coarse)
+        if not settle:
+            return rule(scores[0], PERIOD)
+        return settle_windows(score, scores, lambda k: rule(scores[k], PERIOD), {0: (0, 32)},
+                              PERIOD, 1)[0]
+
+    full = chosen(1, False)
+    assert round(full / PERIOD) in (8, 12, 16)
+    assert round(chosen(4, False) / PERIOD) == 24  # judged by itself alone
+    calls.clear()
+    assert chosen(4, True) == full
+    assert len(calls) >= 3  # the search's two rounds, then the window's missing steps
+    # nothing to settle without a margin, or when never cutting is chosen
+    scores = {0: {0.0: -3.0, math.inf: -1.0}}
+    assert settle_windows(score, scores, lambda k: math.inf, {0: (0, 32)}, PERIOD, 1) == {
+        0: math.inf}
+
+
 def test_rules_choose_among_the_allowed_cuts_only():
     """``allowed`` restricts the choice, not the windows: the best allowed cut by its window
     over every tried cut; an empty choice is refused."""
