@@ -31,7 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .data import MeasuredRun, read_runs, simulate_run
-from .discrepancy.candidates import CANDIDATES, FitParam, apply
+from .discrepancy.candidates import CANDIDATES, FitParam, apply, read
 from .discrepancy.fit import Executor, Job, Problem, fixed_step, solve
 from .discrepancy.prepare import prepare
 from .discrepancy.residuals import estimate_noise, nrmse
@@ -238,13 +238,15 @@ class Commissioned:
                 raise ValueError("values, u and cov_u must be finite, one per parameter")
             return cls(rig=RigParams.from_dict(d["rig"]),
                        stated=RigParams.from_dict(d["stated"]), params=params, values=values,
-                       u=u, cov_u=cov, ssr=float(d["ssr"]), n=int(d["n"]),
-                       kappa=float(d["kappa"]), runs=[str(r) for r in d.get("runs", [])],
-                       nrmse=dict(d.get("nrmse", {})), extras=list(d.get("extras", [])),
+                       u=u, cov_u=cov, ssr=_number(d, "ssr"), n=_count(d, "n"),
+                       kappa=_number(d, "kappa"), runs=_names(d, "runs"),
+                       nrmse=dict(d.get("nrmse", {})), extras=_names(d, "extras"),
                        alternatives=[RigParams.from_dict(r) for r in d.get("alternatives", [])],
-                       alternative_misfits=[float(v) for v in d.get("alternative_misfits", [])],
-                       alternative_deltas=[float(v) for v in d.get("alternative_deltas", [])],
-                       refitted=bool(d.get("refitted", False)))
+                       alternative_misfits=[_number(d, "alternative_misfits", v)
+                                            for v in d.get("alternative_misfits", [])],
+                       alternative_deltas=[_number(d, "alternative_deltas", v)
+                                           for v in d.get("alternative_deltas", [])],
+                       refitted=_flag(d, "refitted"))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
@@ -307,8 +309,9 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
     :attr:`Commissioned.alternatives`. ``extras``: then try :data:`EXTRA_PARAMS` (kept if
     significant, :data:`EXTRA_P`). ``refit_starts``: if the finished fit's misfit exceeds
     :data:`MISFIT_FLAG` (a wrong basin, as a fit far from the rig often is), this many more
-    starts per line model are drawn and fitted, and the whole fit finished again from all the
-    starts; the finished fit of lower SSR is kept (:attr:`Commissioned.refitted` says which).
+    starts per line model are drawn and fitted; if one of them ends below the best first
+    start, the whole fit is finished again from all the starts, and the finished fit of lower
+    SSR is kept (:attr:`Commissioned.refitted` says which).
     Raises ``ValueError`` on no runs, runs of different rigs or bad options."""
     for name, v, lo in (("starts", starts, 1), ("max_nfev", max_nfev, 1),
                         ("n_jobs", n_jobs, 1), ("max_samples", max_samples, 100),
@@ -374,6 +377,38 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         return model
     finally:
         executor.close()
+
+
+def _number(d: dict, key: str, v: Any = None) -> float:
+    """``d[key]`` (or ``v``, one of its items): a finite number >= 0, else ``ValueError``."""
+    v = d[key] if v is None else v
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
+        raise ValueError(f"{key} = {v!r} must be a finite number >= 0")
+    return float(v)
+
+
+def _count(d: dict, key: str) -> int:
+    """``d[key]``: an integer >= 1, else ``ValueError``."""
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise ValueError(f"{key} = {v!r} must be an integer >= 1")
+    return v
+
+
+def _names(d: dict, key: str) -> list[str]:
+    """``d[key]`` (default empty): a list of strings, else ``ValueError``."""
+    v = d.get(key, [])
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise ValueError(f"{key} = {v!r:.80} must be a list of names")
+    return list(v)
+
+
+def _flag(d: dict, key: str) -> bool:
+    """``d[key]`` (default false): true or false, else ``ValueError``."""
+    v = d.get(key, False)
+    if not isinstance(v, bool):
+        raise ValueError(f"{key} = {v!r} must be true or false")
+    return v
 
 
 def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, list, list]:
@@ -503,11 +538,11 @@ def report_markdown(m: Commissioned) -> str:
              f"modelled as {m.stated.line.model!r}, orifices by the "
              f"{m.stated.valve.flow_model!r} law.", "",
              "| parameter | stated | fitted | ± (1 s.e.) |", "|---|---|---|---|"]
-    for p, v in zip(m.params, m.values):
-        stated = p.stated(m.stated) if p.path != "valve.delay_s" else m.stated.valve_delay_s
-        val = v * stated if p.relative else v
-        se = std[p.path] * (stated if p.relative else 1.0)
-        lines.append(f"| {p.path} | {stated:.4g} | {val:.4g} | {se:.2g} |")
+    for p, v in zip(m.params, m.values):  # a relative parameter: its factor times the stated
+        stated = (m.stated.valve_delay_s if p.path == "valve.delay_s"
+                  else read(m.stated, p.path))
+        scale = stated if p.relative else 1.0
+        lines.append(f"| {p.path} | {stated:.4g} | {v * scale:.4g} | {std[p.path] * scale:.2g} |")
     lines += ["", "NRMSE per run and channel:", ""]
     for run, ch in m.nrmse.items():
         lines.append(f"- {run}: " + ", ".join(f"{k} {v:.4f}" for k, v in ch.items()))

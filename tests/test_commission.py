@@ -7,6 +7,7 @@ import json
 import math
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -90,6 +91,15 @@ def test_the_model_round_trips_and_draws_plausible_rigs(model, tmp_path):
     assert dev(model.members(5, seed=1, spread=2.0)) > 1.5 * dev(rigs)  # twice the deviations
     with pytest.raises(ValueError, match="spread"):
         model.members(5, spread=-1.0)
+
+
+def test_the_report_gives_values_not_factors(model):
+    """A parameter fitted as a factor on the stated value is reported in its unit."""
+    row = next(ln for ln in report_markdown(model).splitlines()
+               if ln.startswith("| valve.exhaust_area_m2 |"))
+    stated, fitted = (float(x) for x in row.split("|")[2:4])
+    assert stated == pytest.approx(KNOWN.valve.exhaust_area_m2, rel=1e-3)
+    assert fitted == pytest.approx(6e-5, rel=0.05)
 
 
 def test_the_report_flags_a_fit_far_above_the_noise(model):
@@ -210,6 +220,11 @@ def test_refusals(runs, model, tmp_path):
     (tmp_path / "commissioning.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="one per parameter"):
         Commissioned.load(tmp_path)
+    for key, v, match in (("ssr", "nan", "ssr"), ("ssr", -1.0, "ssr"), ("n", True, "n = True"),
+                          ("kappa", float("inf"), "kappa"), ("runs", "abc", "runs"),
+                          ("refitted", "false", "refitted")):
+        with pytest.raises(ValueError, match=f"where: {match}"):
+            Commissioned.from_dict({**model.to_dict(), key: v}, "where")
     with pytest.raises(FileNotFoundError, match="pneugym commission"):
         Commissioned.load(tmp_path / "missing")
     env = CutOffVectorEnv(num_envs=1, observe_rig=True)
@@ -387,3 +402,26 @@ def test_a_rig_of_a_suite_runs_as_a_task_of_its_own_with_the_same_records():
         policy_records("gaslaw", rigs=split[0], **args)
     with pytest.raises(ValueError, match="must name rigs"):
         policy_records("mpc-rig", rigs=["nope"], **args)
+
+
+def test_the_plan_bench_keeps_fits_per_draw_and_writes_strict_json(model, tmp_path, monkeypatch,
+                                                                   load_bench):
+    """bench_mpc_plan.py's kept fits carry what they were fitted for: a folder kept for another
+    draw or other options is refused, not planned on; its results hold no infinity."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    bench = load_bench("bench_mpc_plan")
+    where = tmp_path / "0-stated law"
+    model.save(where)
+    opts = {"starts": 2, "max_nfev": 40, "refit_starts": 4}
+    key = {"seed": 3, "draw": 0}
+    (where / "fit_key.json").write_text(json.dumps(
+        {**key, "orifice_models": None, "commission": {**opts, "refit_starts": 0}}))
+    with pytest.raises(SystemExit, match="another --fits folder"):
+        bench._fit(None, None, {**opts, "n_jobs": 2}, where, key)
+    with pytest.raises(SystemExit, match="another --fits folder"):  # another draw's fit
+        bench._fit(None, None, {**opts, "refit_starts": 0}, where, {"seed": 4, "draw": 0})
+    (where / "fit_key.json").write_text(json.dumps(
+        {**key, "orifice_models": None, "commission": opts}))
+    assert bench._fit(None, None, {**opts, "n_jobs": 1}, where, key).ssr == model.ssr
+    assert json.dumps(bench._finite({"cut": math.inf, "x": [1.0, -math.inf]}),
+                      allow_nan=False) == '{"cut": null, "x": [1.0, null]}'
