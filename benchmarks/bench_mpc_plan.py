@@ -25,8 +25,8 @@ draw's cuts and figures) and ``mpc_plan.png``; ``--fits DIR`` keeps every commis
 there and reuses it.
 
 The plans here search every control period (``RigModelPolicy(coarse=1)``); ``mpc-rig`` searches
-every fourth, then every period around its three best, and took the same cuts on all 40
-validation draws.
+every fourth, then every period around its three best and around the cut it takes
+(:func:`agents.oracle.settle_windows`), and took the same cuts on all 40 validation draws.
 
     python benchmarks/bench_mpc_plan.py --seed 3000000    # validation draws, about 2 h on 2 cores
     python benchmarks/bench_mpc_plan.py --seed 3000000 --laws stated --spreads 2 --margins 1 \
@@ -80,8 +80,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", default="bench/mpc-plan", help="folder for the results")
     add_commission_args(ap)
     args = ap.parse_args(argv)
-    if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0:
-        ap.error("--episodes and --members must be >= 1, --spreads and --margins >= 0")
+    if args.episodes < 1 or args.members < 1 or min(args.spreads) < 0 or min(args.margins) < 0 \
+            or not all(map(math.isfinite, args.spreads)):
+        ap.error("--episodes and --members must be >= 1, --spreads (finite) and --margins >= 0")
     for name in ("stick_weights", "stall_weights"):
         v = getattr(args, name)
         if min(v) < 0 or not all(map(math.isfinite, v)):
@@ -127,7 +128,8 @@ def main(argv=None) -> dict:
         plans: dict = {}  # mean returns by plausible rigs (forms adds none where none is kept)
         for law, law_models in laws.items():
             t0 = time.perf_counter()
-            model = _fit(runs, law_models, opts, args.fits and Path(args.fits) / f"{g}-{law}")
+            model = _fit(runs, law_models, opts, args.fits and Path(args.fits) / f"{g}-{law}",
+                         {"seed": args.seed, "draw": g})
             d["fits"][law] = {"form": [model.rig.line.model, model.rig.valve.flow_model],
                               "misfit": model.misfit, "refitted": model.refitted,
                               "seconds": time.perf_counter() - t0,
@@ -188,7 +190,8 @@ def main(argv=None) -> dict:
               "config": {**vars(args), "commission": opts}, "provenance": provenance()}
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "mpc_plan.json").write_text(json.dumps(result, indent=2, default=_num))
+    (out_dir / "mpc_plan.json").write_text(json.dumps(_finite(result), indent=2, default=_num,
+                                                      allow_nan=False))
     _plot(table, out_dir / "mpc_plan.png")
     print(f"wrote {out_dir / 'mpc_plan.json'} and .png")
     return result
@@ -221,16 +224,26 @@ def _truth_at(cuts: list, policy, c, truth_j: dict) -> None:
             {0: quiet}, {0: missing}, FIGURES)[0])
 
 
-def _fit(runs, law_models, opts: dict, where: Path | None):
+def _fit(runs, law_models, opts: dict, where: Path | None, draw: dict):
     """The commissioning fit of ``runs`` (``law_models``: the orifice laws tried), kept in
-    folder ``where`` and read from there when it is already."""
+    folder ``where`` with what it was fitted for (``draw``: the seed and draw, the laws, the
+    options; ``fit_key.json``) and read from there when it is already; a kept fit of another
+    draw or other options is refused (a folder kept before the key was written is taken)."""
     from pneugym.commission import Commissioned, commission
 
+    key = json.loads(json.dumps({**draw, "orifice_models": law_models,
+                                 "commission": {k: v for k, v in opts.items()
+                                                if k != "n_jobs"}}))  # (jobs change nothing)
     if where is not None and (where / "commissioning.json").is_file():
+        kept = where / "fit_key.json"
+        if kept.is_file() and json.loads(kept.read_text()) != key:
+            raise SystemExit(f"--fits: {where} holds a fit for {kept.read_text().strip()}, "
+                             f"not {json.dumps(key)}: give another --fits folder")
         return Commissioned.load(where)
     model = commission(runs, orifice_models=law_models, **opts)
     if where is not None:
         model.save(where)
+        (where / "fit_key.json").write_text(json.dumps(key))
     return model
 
 
@@ -262,6 +275,18 @@ def _window(truth_j: dict, period: float) -> dict | None:
 def _num(v):
     v = float(v)
     return v if math.isfinite(v) else None
+
+
+def _finite(obj):
+    """``obj`` with every non-finite float (a cut never taken: ``inf``) as ``None`` (JSON
+    has no infinity)."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def _scores(policy, c, base, truth_j: dict) -> dict:

@@ -6,6 +6,7 @@ it lives in.
 """
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import platform
@@ -35,13 +36,24 @@ GOAL_SCIPY_RATIO = 50.0
 def add_commission_args(ap) -> None:
     """``--commission-starts``, ``--commission-nfev`` and ``--commission-refit`` on parser ``ap``:
     the commissioning fit's options, each ``mpc-rig``'s when not given."""
-    ap.add_argument("--commission-starts", type=int, default=None,
+    ap.add_argument("--commission-starts", type=_at_least(1), default=None,
                     help="least-squares starts per line model (default: mpc-rig's)")
-    ap.add_argument("--commission-nfev", type=int, default=None,
+    ap.add_argument("--commission-nfev", type=_at_least(1), default=None,
                     help="evaluations per least-squares start (default: mpc-rig's)")
-    ap.add_argument("--commission-refit", type=int, default=None,
+    ap.add_argument("--commission-refit", type=_at_least(0), default=None,
                     help="more starts per line model where a fit's misfit is flagged "
                          "(default: mpc-rig's)")
+
+
+def _at_least(lo: int):
+    """An argparse type: an integer >= ``lo``."""
+    def parse(text: str) -> int:
+        v = int(text)
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"{v} is below {lo}")
+        return v
+    parse.__name__ = f"integer >= {lo}"
+    return parse
 
 
 def commission_overrides(args) -> dict:
