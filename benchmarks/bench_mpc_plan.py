@@ -228,23 +228,36 @@ def _fit(runs, law_models, opts: dict, where: Path | None, draw: dict):
     """The commissioning fit of ``runs`` (``law_models``: the orifice laws tried), kept in
     folder ``where`` with what it was fitted for (``draw``: the seed and draw, the laws, the
     options; ``fit_key.json``) and read from there when it is already; a kept fit of another
-    draw or other options is refused (a folder kept before the key was written is taken)."""
-    from pneugym.commission import Commissioned, commission
+    draw or other options is refused (a folder kept before the key was written is taken; a fit
+    below the misfit flag is the same with any ``refit_starts``, so a run that refits may reuse
+    one fitted without)."""
+    from pneugym.commission import MISFIT_FLAG, Commissioned, commission
 
     key = json.loads(json.dumps({**draw, "orifice_models": law_models,
                                  "commission": {k: v for k, v in opts.items()
                                                 if k != "n_jobs"}}))  # (jobs change nothing)
     if where is not None and (where / "commissioning.json").is_file():
+        model = Commissioned.load(where)
         kept = where / "fit_key.json"
-        if kept.is_file() and json.loads(kept.read_text()) != key:
+        if kept.is_file() and not _same_fit(json.loads(kept.read_text()), key,
+                                            model.misfit <= MISFIT_FLAG):
             raise SystemExit(f"--fits: {where} holds a fit for {kept.read_text().strip()}, "
                              f"not {json.dumps(key)}: give another --fits folder")
-        return Commissioned.load(where)
+        return model
     model = commission(runs, orifice_models=law_models, **opts)
     if where is not None:
         model.save(where)
         (where / "fit_key.json").write_text(json.dumps(key))
     return model
+
+
+def _same_fit(kept: dict, key: dict, unflagged: bool) -> bool:
+    """Whether a fit kept for ``kept`` serves ``key`` (:func:`_fit`'s keys); ``unflagged``: the
+    kept fit is below the misfit flag, so ``refit_starts`` would not have changed it."""
+    if unflagged:
+        kept, key = ({**k, "commission": {n: v for n, v in k.get("commission", {}).items()
+                                          if n != "refit_starts"}} for k in (kept, key))
+    return kept == key
 
 
 def _window(truth_j: dict, period: float) -> dict | None:

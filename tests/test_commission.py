@@ -416,10 +416,17 @@ def test_the_plan_bench_keeps_fits_per_draw_and_writes_strict_json(model, tmp_pa
     key = {"seed": 3, "draw": 0}
     (where / "fit_key.json").write_text(json.dumps(
         {**key, "orifice_models": None, "commission": {**opts, "refit_starts": 0}}))
+    assert model.misfit <= 9  # a fit below the flag: the same with any refit_starts
+    assert bench._fit(None, None, {**opts, "n_jobs": 2}, where, key).ssr == model.ssr
     with pytest.raises(SystemExit, match="another --fits folder"):
-        bench._fit(None, None, {**opts, "n_jobs": 2}, where, key)
+        bench._fit(None, None, {**opts, "starts": 3}, where, key)
     with pytest.raises(SystemExit, match="another --fits folder"):  # another draw's fit
         bench._fit(None, None, {**opts, "refit_starts": 0}, where, {"seed": 4, "draw": 0})
+    flagged = replace(model, ssr=50.0 * model.n)
+    flagged.save(where)
+    with pytest.raises(SystemExit, match="another --fits folder"):  # a refit might change it
+        bench._fit(None, None, opts, where, key)
+    model.save(where)
     (where / "fit_key.json").write_text(json.dumps(
         {**key, "orifice_models": None, "commission": opts}))
     assert bench._fit(None, None, {**opts, "n_jobs": 1}, where, key).ssr == model.ssr
