@@ -84,8 +84,8 @@ class RigModelPolicy(TimedCutPolicy):
     control periods later; ``min_completion``: a chance constraint, the plan only takes a cut
     whose stroke at least this share of the plausible rigs complete (default 1: all of them;
     0: any cut; never cutting qualifies wherever every plausible rig's conventional stroke
-    arrives within the episode's time limit; :func:`completing`). The observation must hold the payload
-    (``observe_rig=True``, as every evaluation has)."""
+    arrives within the episode's time limit; :func:`completing`). The observation must hold
+    the payload (``observe_rig=True``, as every evaluation has)."""
 
     name = "mpc-rig"
     #: the evaluation commissions a model per rig when none is given (agents.evaluation.run)

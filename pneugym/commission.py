@@ -244,7 +244,7 @@ class Commissioned:
                        alternatives=[RigParams.from_dict(r) for r in d.get("alternatives", [])],
                        alternative_misfits=[_number(d, "alternative_misfits", v)
                                             for v in d.get("alternative_misfits", [])],
-                       alternative_deltas=[_number(d, "alternative_deltas", v)
+                       alternative_deltas=[_number(d, "alternative_deltas", v, -math.inf)
                                            for v in d.get("alternative_deltas", [])],
                        refitted=_flag(d, "refitted"))
         except (KeyError, TypeError, ValueError) as exc:
@@ -379,11 +379,13 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         executor.close()
 
 
-def _number(d: dict, key: str, v: Any = None) -> float:
-    """``d[key]`` (or ``v``, one of its items): a finite number >= 0, else ``ValueError``."""
+def _number(d: dict, key: str, v: Any = None, lo: float = 0.0) -> float:
+    """``d[key]`` (or ``v``, one of its items): a finite number >= ``lo``, else
+    ``ValueError``."""
     v = d[key] if v is None else v
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
-        raise ValueError(f"{key} = {v!r} must be a finite number >= 0")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v)
+                                                                       and v >= lo):
+        raise ValueError(f"{key} = {v!r} must be a finite number >= {lo:g}")
     return float(v)
 
 
