@@ -14,8 +14,8 @@ draws from the fit's uncertainty at twice its standard deviations,
 :meth:`~pneugym.commission.Commissioned.members`), averages the return over them and cuts at the
 time whose mean average within ``margin_periods`` (one control period) either side is best
 (:func:`agents.mpc.expected_best`, every period of that window tried:
-:func:`agents.oracle.settle_windows`): a cut on the edge of a stick-slip or a stall, which the model
-may misplace by a few ms, is given up for a little air (issue 12, part 5). It takes only a cut
+:func:`agents.oracle.settle_windows`): a cut on the edge of a stick-slip or a stall, which the
+model may misplace by a few ms, is given up for a little air (issue 12, part 5). It takes only a cut
 whose stroke every plausible rig completes (``min_completion``, a chance constraint): on a fit
 far from the rig every completing stroke may stick, and a stroke that never completes would
 then score better (docs/policies.md). The wide spread puts

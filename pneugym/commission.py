@@ -37,6 +37,7 @@ from .discrepancy.prepare import prepare
 from .discrepancy.residuals import estimate_noise, nrmse
 from .discrepancy.stats import FORM_DELTA, f_test, form_delta, inflation
 from .params import LINE_MODELS, ORIFICE_MODELS, RigParams, forms_tried
+from .plant import _real
 
 FORMAT = "pneugym-commissioning/1"
 #: samples per run the fit uses (longer runs are block-averaged, as in the discrepancy workflow)
@@ -383,8 +384,7 @@ def _number(d: dict, key: str, v: Any = None, lo: float = 0.0) -> float:
     """``d[key]`` (or ``v``, one of its items): a finite number >= ``lo``, else
     ``ValueError``."""
     v = d[key] if v is None else v
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v)
-                                                                       and v >= lo):
+    if not (_real(v) and v >= lo):  # (the plant's test: a finite real, not a bool)
         raise ValueError(f"{key} = {v!r} must be a finite number >= {lo:g}")
     return float(v)
 
