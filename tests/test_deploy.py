@@ -268,6 +268,52 @@ def test_replay_refuses_a_coarse_recording(measured):
         replay(Controller.load("gaslaw"), [run])
 
 
+def test_replay_refuses_a_run_recorded_from_later(measured):
+    from pneugym.data import read_run
+    from pneugym.deploy.replay import replay
+
+    run = read_run(measured / "conventional")
+    keep = run.t >= 0.02
+    run.t, run.x, run.p_drive, run.p_exhaust, run.valve = (a[keep] for a in (
+        run.t, run.x, run.p_drive, run.p_exhaust, run.valve))
+    with pytest.raises(ValueError, match="conventional: its first sample is 0.02 s after"):
+        replay(Controller.load("gaslaw"), [run])
+
+
+def test_replay_gives_a_policy_the_commissioning_stroke_of_each_run(measured):
+    """A policy that reads a commissioning stroke gets the one at the run's operating point;
+    without one, or with one at another point, the run is refused."""
+    from pneugym.data import read_run, simulate_run
+    from pneugym.deploy.replay import replay
+    from pneugym.envs.commissioning import run_features
+    from pneugym.envs.cutoff import COMMISSIONING_OBSERVATION, CutOffVectorEnv
+
+    class Reads:  # a stand-in for esac-family: reads the stroke's features, never cuts
+        model_layout = {"rig_features": [{"name": COMMISSIONING_OBSERVATION[0].name}]}
+
+        def begin_episodes(self, conds):
+            pass
+
+        def predict(self, obs):
+            return np.zeros(1, np.int64), None
+
+    env = CutOffVectorEnv(num_envs=1, observe_rig=True, observe_commissioning=True)
+    ctl = Controller(Reads(), env)
+    run = read_run(measured / "conventional")
+    with pytest.raises(ValueError, match="conventional: the policy reads a commissioning "
+                                         "stroke.*--commissioning"):
+        replay(ctl, [run])
+    other = simulate_run(RigParams().with_(supply_pressure_gauge_pa=4e5), cut_on_arrival=True,
+                         t_end=3.0, seed=1)
+    with pytest.raises(ValueError, match="those given are at 4 bar g / 10 kg"):
+        replay(ctl, [run], commissioning=[other])
+    stroke = simulate_run(RigParams(), cut_on_arrival=True, t_end=3.0, seed=1)
+    (res,) = replay(ctl, [run], commissioning=[other, stroke])
+    assert res["cut_time_s"] is None
+    np.testing.assert_allclose(ctl.observation[-6:],
+                               run_features(stroke, RigParams().cylinder.stroke_m), rtol=1e-6)
+
+
 def test_load_takes_a_gaslaw_calibration_file():
     from pathlib import Path
 

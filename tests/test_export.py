@@ -278,6 +278,26 @@ def test_controller_json_records_the_policy(exported):
     assert meta["tolerance"] == {"atol": ex.ATOL, "rtol": ex.RTOL}
 
 
+def test_an_export_loads_at_the_period_and_time_limit_it_was_built_for(exported, tmp_path):
+    """Controller.load reads an export's control period and time scale from its
+    controller.json (an export has no run.json)."""
+    import shutil
+
+    from pneugym.deploy.controller import _trained_env
+
+    _, d = exported["ppo-asymmetric"]
+    assert _trained_env(d) == {"control_period_s": 0.005, "time_limit_s": 4.0}
+    copy = tmp_path / "slow"
+    shutil.copytree(d, copy)
+    meta = json.loads((copy / "controller.json").read_text())
+    meta["model_layout"]["control_period_s"] = 0.01
+    for f in meta["model_layout"]["features"]:
+        if f["name"] == "time":
+            f["scale"] = 6.0
+    (copy / "controller.json").write_text(json.dumps(meta))
+    assert _trained_env(copy) == {"control_period_s": 0.01, "time_limit_s": 6.0}
+
+
 # ------------------------------------------------------------------------------------------
 # refusals
 # ------------------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ the policy makes inside the environment, bit for bit.
 """
 from __future__ import annotations
 
+import json
 import math
 import numbers
 import os
@@ -80,6 +81,8 @@ class Controller:
         self.source = source
         self.rig: RigParams = u.rig
         self.period_s = float(u.control_period_s)
+        #: the episode's time limit [s] the policy was built for (its time feature's scale)
+        self.time_limit_s = float(u.time_limit_s)
         self.period_tolerance = float(period_tolerance)
         self.layout = u.observation_layout()
         self._scales = u._scales.copy()
@@ -286,9 +289,20 @@ class Controller:
 
 
 def _trained_env(path: Path) -> dict[str, Any]:
-    """The control period and time limit a run (or a model in a run directory) trained with."""
+    """The control period and time limit a run (or a model in a run directory, or an export:
+    its ``controller.json``'s ``model_layout``) trained with."""
     from agents.learned import read_run
 
+    from .export import CONTROLLER_FILE
+
+    if path.is_dir() and (path / CONTROLLER_FILE).is_file():
+        try:
+            layout = json.loads((path / CONTROLLER_FILE).read_text())["model_layout"]
+            time = [f for f in layout["features"] if f["name"] == "time"]
+            return {"control_period_s": float(layout["control_period_s"]),
+                    **({"time_limit_s": float(time[0]["scale"])} if time else {})}
+        except (ValueError, KeyError, TypeError, IndexError):
+            return {}  # (load_exported refuses a broken file with its own message)
     run = read_run(path) if (path.is_dir() or path.is_file()) else None
     env = dict((run or {}).get("env_config") or {})
     return {k: env[k] for k in ("control_period_s", "time_limit_s") if k in env}

@@ -67,28 +67,38 @@ def predict_cuts(rig: RigParams, cuts_s: Sequence[float | None], period_s: float
     return out  # type: ignore[return-value]
 
 
-def replay_run(controller: Controller, run: Any, rig: RigParams | None = None) -> dict[str, Any]:
+def replay_run(controller: Controller, run: Any, rig: RigParams | None = None,
+               commissioning: Sequence[Any] = ()) -> dict[str, Any]:
     """Feed ``run`` (a :class:`pneugym.data.MeasuredRun`) to ``controller``; returns its cut
     time [s] (None: it never cut while recorded), the run's own, and the outcome the model
     predicts for each and for a conventional stroke (:func:`predict_cuts` on ``rig``, default
     the rig the run's JSON states over the controller's, at the run's supply, load and external
-    force). A controller that had not cut by the run's own cut is flagged
-    (``after_recorded_cut``) and its outcome is unknown (``predicted`` None)."""
+    force, within the controller's time limit). A controller that had not cut by the run's own
+    cut is flagged (``after_recorded_cut``) and its outcome is unknown (``predicted`` None).
+    ``commissioning``: measured commissioning strokes (extend, cut off on arrival, held); a
+    policy that reads one gets the stroke at the run's operating point
+    (:func:`commissioning_for`)."""
     p = controller.period_s
     if run.sample_dt_s > p * (1 + 1e-6):
         raise ValueError(f"{run.name}: sampled every {run.sample_dt_s * 1e3:.3g} ms, coarser than "
                          f"the controller's period ({p * 1e3:g} ms): it cannot be replayed")
+    if run.t[0] > p * (1 + controller.period_tolerance):
+        raise ValueError(f"{run.name}: its first sample is {run.t[0]:.4g} s after the extend "
+                         f"command; the controller decides from the first control period "
+                         f"({p * 1e3:g} ms) on, so a run recorded from later cannot be replayed")
     stated = run.rig(controller.rig)  # the run's own rig section over the controller's rig
     if stated.stroke_direction != "extend":
         raise ValueError(f"{run.name}: a {stated.stroke_direction} stroke; the controller runs "
                          f"extension strokes")
     supply = float(run.meta["supply_pressure_gauge_pa"])
     load = float(run.meta.get("load_mass_kg", controller.rig.load_mass_kg))
-    pa = float(run.meta.get("ambient_pressure_pa", controller.rig.gas.ambient_pressure_pa))
     grid = np.arange(math.ceil(max(run.t[0], 0.0) / p - 1e-9), math.floor(run.t[-1] / p + 1e-9)
                      + 1) * p
     cols = [np.interp(grid, run.t, getattr(run, c)) for c in ("x", "p_drive", "p_exhaust")]
-    controller.reset(supply + pa, load)
+    # (the set-point is gauge in the run; the controller takes it absolute over its ambient)
+    controller.reset(supply + controller.rig.gas.ambient_pressure_pa, load,
+                     commissioning_for(run, commissioning, supply, load)
+                     if controller.reads_commissioning else None)
     for k in range(grid.size):
         if controller.step(grid[k], cols[0][k], cols[1][k], cols[2][k]):
             break
@@ -96,27 +106,51 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None) -
     late = own is not None and (cut is None or cut > own)
     model_rig = (rig or stated).with_(supply_pressure_gauge_pa=supply, load_mass_kg=load,
                                       external_force_n=stated.external_force_n)
-    ctl, rec, conv = predict_cuts(model_rig, [cut, own, None], p)
+    ctl, rec, conv = predict_cuts(model_rig, [cut, own, None], p, controller.time_limit_s)
     return {"run": run.name, "description": run.description, "supply_bar_gauge": supply / 1e5,
             "load_kg": load, "cut_time_s": cut, "recorded_cut_time_s": own,
             "after_recorded_cut": late, "predicted": None if late else ctl,
             "predicted_recorded": rec, "predicted_conventional": conv}
 
 
-def replay(controller: Controller, runs: Any, rig: Any = None) -> list[dict[str, Any]]:
-    """:func:`replay_run` for each measured run of ``runs`` (paths, folders, or
-    :class:`~pneugym.data.MeasuredRun` objects); ``rig``: the rig the predictions run on
-    (a rig file, a dict, a RigParams; default the controller's)."""
-    from ..data import MeasuredRun, read_runs
-    from ..rigfile import as_rig
+def commissioning_for(run: Any, strokes: Sequence[Any], supply_gauge_pa: float,
+                      load_kg: float) -> Any:
+    """The commissioning stroke of ``strokes`` recorded at ``run``'s operating point (supply
+    within 5 kPa, payload within 0.5 kg); ``ValueError`` if none is."""
+    for s in strokes:
+        if (abs(float(s.meta["supply_pressure_gauge_pa"]) - supply_gauge_pa) <= 5e3
+                and abs(float(s.meta.get("load_mass_kg", load_kg)) - load_kg) <= 0.5):
+            return s
+    have = ", ".join(f"{float(s.meta['supply_pressure_gauge_pa']) / 1e5:g} bar g / "
+                     f"{float(s.meta.get('load_mass_kg', load_kg)):g} kg" for s in strokes)
+    raise ValueError(f"{run.name}: the policy reads a commissioning stroke (extend, cut off on "
+                     f"arrival, held 1.5 s) at the run's operating point, {supply_gauge_pa / 1e5:g} "
+                     f"bar g / {load_kg:g} kg; give one (--commissioning RUN)"
+                     + (f": those given are at {have}" if have else ""))
 
-    items = runs if isinstance(runs, (list, tuple)) else [runs]
+
+def _measured(items: Any, base: RigParams) -> list[Any]:
+    """Measured runs from objects, paths and folders."""
+    from ..data import MeasuredRun, read_runs
+
+    items = items if isinstance(items, (list, tuple)) else [items]
     loaded = [r for r in items if isinstance(r, MeasuredRun)]
     paths = [r for r in items if not isinstance(r, MeasuredRun)]
-    if paths:
-        loaded += read_runs(paths, base=controller.rig)
+    return loaded + (read_runs(paths, base=base) if paths else [])
+
+
+def replay(controller: Controller, runs: Any, rig: Any = None,
+           commissioning: Any = ()) -> list[dict[str, Any]]:
+    """:func:`replay_run` for each measured run of ``runs`` (paths, folders, or
+    :class:`~pneugym.data.MeasuredRun` objects); ``rig``: the rig the predictions run on
+    (a rig file, a dict, a RigParams; default the controller's); ``commissioning``: the
+    commissioning strokes (the same kinds) for a policy that reads one."""
+    from ..rigfile import as_rig
+
     model = as_rig(rig, "rig") if rig is not None else None
-    return [replay_run(controller, r, model) for r in loaded]
+    strokes = _measured(commissioning, controller.rig) if commissioning else []
+    return [replay_run(controller, r, model, strokes)
+            for r in _measured(runs, controller.rig)]
 
 
 def _py(v: Any) -> Any:
@@ -178,7 +212,7 @@ def parser() -> argparse.ArgumentParser:
                "  pneugym replay measured/ --policy gaslaw --rig rig.yaml --out replay/\n"
                "  pneugym replay measured/run3.csv --policy runs/esac --rig rig.yaml\n"
                "  pneugym replay measured/ --policy esac-family --rig rig.yaml "
-               "--model-rig report/updated_model.json",
+               "--commissioning commissioning/ --model-rig report/updated_model.json",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", help="measured runs: folders or NAME.csv/NAME.json files")
     p.add_argument("--policy", default="gaslaw",
@@ -188,6 +222,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--model-rig", default=None,
                    help="rig file the predictions run on (default --rig), e.g. the discrepancy "
                         "workflow's updated_model.json")
+    p.add_argument("--commissioning", nargs="+", default=[], metavar="RUN",
+                   help="commissioning strokes (extend, cut off on arrival, held 1.5 s), one "
+                        "per operating point of the runs, for a policy that reads one "
+                        "(esac-family, ppo-family)")
     p.add_argument("--runs-dir", default="runs", help="where learned policies' runs are")
     p.add_argument("--out", default=None, help="folder for replay.json/.csv/.png")
     return p
@@ -196,7 +234,8 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     args = parser().parse_args(argv)
     ctl = Controller.load(args.policy, rig=args.rig, runs=args.runs_dir)
-    results = replay(ctl, list(args.runs), rig=args.model_rig)
+    results = replay(ctl, list(args.runs), rig=args.model_rig,
+                     commissioning=list(args.commissioning))
     for r in results:
         def fmt(o):
             if o is None:
