@@ -57,6 +57,13 @@ def test_bad_scenarios_are_refused_by_name(drift, match):
         Scenario("bad", drift=drift)
 
 
+@pytest.mark.parametrize("name", ["../escaped", "a/b", "", ".hidden", "x" * 65])
+def test_scenario_names_that_would_leave_a_folder_are_refused(name):
+    with pytest.raises(ValueError, match="Scenario name"):
+        Scenario(name)
+    assert Scenario("leak-onset@my_rig.v2").name == "leak-onset@my_rig.v2"
+
+
 def test_unknown_scenario_names_the_nearest():
     with pytest.raises(ValueError, match="leak-onset"):
         scenario("leak-onsett")
@@ -204,6 +211,18 @@ def test_demand_tuner_moves_only_on_a_clear_difference_and_forgets_old_strokes()
         DemandTuner(grid, bandwidth=0.0)
 
 
+def test_parquet_export_writes_the_records_tables_only(tmp_path):
+    """A table of the user's own in the file (any name) is left out, not pasted into SQL."""
+    from pneugym.operation.record import EXPORTED
+
+    with Record(tmp_path / "r.duckdb") as rec:
+        rec.con.execute('CREATE TABLE "per minute" (a INTEGER)')
+        rec.con.execute('CREATE TABLE "x\' TO \'/tmp/evil" (a INTEGER)')
+        files = rec.export_parquet(tmp_path / "pq")
+    assert {f.name for f in files} == {f"{t}.parquet" for t in EXPORTED} - {"monitor.parquet"}
+    assert sorted(p.name for p in (tmp_path / "pq").iterdir()) == sorted(f.name for f in files)
+
+
 def test_exports_parquet_and_measured_runs(gaslaw_life, tmp_path):
     import duckdb
 
@@ -299,6 +318,11 @@ def test_operate_refuses_bad_arguments(tmp_path):
     with pytest.raises(ValueError, match="block"):
         operate("healthy", "gaslaw", strokes=5, block=0, db=tmp_path / "a.duckdb",
                 progress=False)
+    for seed in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="seed"):
+            operate("healthy", "gaslaw", strokes=5, seed=seed, db=tmp_path / "b.duckdb",
+                    progress=False)
+    assert not (tmp_path / "b.duckdb").exists()  # refused before the record is opened
     env = CutOffVectorEnv(num_envs=1, **ENV_CONFIG)
     with pytest.raises(ValueError, match="not an ESAC model"):
         make_controller("esac-adaptive=agents/gaslaw_k.json", env)
@@ -557,6 +581,16 @@ def test_air_cost_of_any_named_effect():
     slow = air_cost({"valve.delay_scale": 1.5}, 0.9, 2.5e5, 10.0)  # a rig field, not an effect
     assert slow["conventional_nl"] == leak["conventional_nl"]
     assert slow["cut_with_effect_nl"] < slow["cut_nl"]  # the supply opens later before the cut
+    # the fitted factor is on the rig's stated delay: no change on a rig that states it slower
+    from pneugym.params import RigParams
+
+    slow_rig = RigParams().with_(valve={"delay_scale": 1.3})
+    same = air_cost({"valve.delay_scale": 1.0}, 0.9, 2.5e5, 10.0, rig=slow_rig)
+    assert same["extra_per_stroke_conventional_nl"] == 0.0
+    assert same["extra_per_stroke_cut_nl"] == 0.0
+    never = air_cost({"leak_drive_area_m2": 4e-7}, None, 2.5e5, 10.0)  # no stroke was cut
+    assert never["cut_s"] is None and never["cut_nl"] == never["conventional_nl"]
+    json.dumps(never, allow_nan=False)
 
 
 def test_alarm_reads_an_ambiguous_answer_as_a_change():

@@ -56,11 +56,13 @@ def _pick(strokes: np.ndarray, cut_s: np.ndarray, window: int) -> np.ndarray:
     return np.array(sorted(picked))
 
 
-def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
-             load_kg: float, dwell_s: float | None = None, rig: Any = None) -> dict[str, float]:
+def air_cost(effect: dict[str, float], cut_s: float | None, supply_gauge_pa: float,
+             load_kg: float, dwell_s: float | None = None, rig: Any = None
+             ) -> dict[str, float | None]:
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
     value}``, or ``{"group.field": value}`` for another rig field, e.g. ``valve.delay_scale``): a
-    conventional stroke and a stroke cut at ``cut_s``, on the commissioned rig (``rig``, default
+    conventional stroke and a stroke cut at ``cut_s`` [s] (None: the window's strokes were
+    never cut; the cut stroke is then the conventional one), on the commissioned rig (``rig``, default
     the thesis rig), each with the rest at the stroke end (``dwell_s``, default the operating
     :data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy
@@ -71,13 +73,15 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
     from .run import DWELL_S, run_block
 
     cond = Conditions(supply_pressure_gauge_pa=supply_gauge_pa, load_mass_kg=load_kg)
-    t = np.array([math.inf, cut_s])
+    t = np.array([math.inf, math.inf if cut_s is None else float(cut_s)])
     nl = []
+    root = RigParams() if rig is None else rig
     groups: dict[str, dict[str, float]] = {}
     for k, v in effect.items():
         g, name = k.split(".", 1) if "." in k else ("effects", k)
-        groups.setdefault(g, {})[name] = float(v)
-    root = RigParams() if rig is None else rig
+        # a slower valve is a factor on the rig's stated delay (as apply_named writes it)
+        groups.setdefault(g, {})[name] = float(v) * (root.valve.delay_scale
+                                                     if k == "valve.delay_scale" else 1.0)
     for r in (root, root.with_(**groups)):
         env = CutOffVectorEnv(num_envs=2, autoreset=False, rig=r)
         f, _, _ = run_block(env, TimedCutPolicy(env.observation_layout(), t), [cond, cond],
@@ -85,7 +89,8 @@ def air_cost(effect: dict[str, float], cut_s: float, supply_gauge_pa: float,
                             dwell_s=DWELL_S if dwell_s is None else dwell_s)
         nl += [float(v) for v in f["free_air_nl"]]
     return {"conventional_nl": nl[0], "conventional_with_effect_nl": nl[2],
-            "cut_nl": nl[1], "cut_with_effect_nl": nl[3], "cut_s": float(cut_s),
+            "cut_nl": nl[1], "cut_with_effect_nl": nl[3],
+            "cut_s": None if cut_s is None else float(cut_s),
             "extra_per_stroke_conventional_nl": nl[2] - nl[0],
             "extra_per_stroke_cut_nl": nl[3] - nl[1]}
 
@@ -234,7 +239,9 @@ def monitor(db: str, run_id: str, every: int = 250, window: int = 6, first: int 
                 t = rec.frame("SELECT supply_setpoint_pa, cutoff_time_s FROM strokes WHERE "
                               "run_id = ? AND stroke BETWEEN ? AND ?", [run_id, c - every, c - 1])
                 load = float(runs[-1].meta["load_mass_kg"])
-                cost = air_cost(effect, float(np.nanmedian(t["cutoff_time_s"])),
+                cuts = np.asarray(t["cutoff_time_s"], dtype=float)  # (never cut: NULL)
+                cuts = cuts[np.isfinite(cuts)]
+                cost = air_cost(effect, float(np.median(cuts)) if cuts.size else None,
                                 float(np.median(t["supply_setpoint_pa"])), load,
                                 float(run["config"].get("dwell_s", 0.0)), rig)
             rec.con.execute("INSERT OR REPLACE INTO monitor VALUES (?, ?, ?, ?, ?, ?, ?, ?)",

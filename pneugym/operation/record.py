@@ -4,7 +4,8 @@ Tables (one database may hold many runs: a run is one scenario, seed and control
 
 - ``runs``: ``run_id``, scenario, seed, controller, strokes asked, the configuration and the
   versions (JSON), status.
-- ``strokes``: one row per stroke: what the controller decided (``cutoff_time_s``, its
+- ``strokes``: one row per stroke: the supply set-point it ran at (``supply_setpoint_pa``,
+  gauge [Pa]: the operator's set-point, as the rig file's supply), what the controller decided (``cutoff_time_s``, its
   ``controller_version``, whether it was a ``reference`` stroke or an ``explore`` one) and
   the measured outcome (completion, stall, stick-slips, stroke time, final position, wasted
   energy, free air; ``energy_conventional_j``, the driving side's energy filled to supply at
@@ -61,6 +62,9 @@ CREATE TABLE IF NOT EXISTS scenarios (
 CREATE TABLE IF NOT EXISTS checkpoints (
     run_id VARCHAR PRIMARY KEY, next_stroke BIGINT, state BLOB);
 """
+#: the tables :meth:`Record.export_parquet` writes (all but the controllers' checkpoints;
+#: ``monitor`` is the condition monitor's, :mod:`pneugym.operation.monitor`)
+EXPORTED = ("models", "monitor", "runs", "scenarios", "strokes", "traces", "truth")
 STROKE_COLUMNS = ("stroke", "hour", "controller_version", "reference", "explore",
                   "supply_setpoint_pa", "cutoff_time_s", "completed", "stalled",
                   "stick_slip_events", "stroke_time_s", "final_position_m", "energy_wasted_j",
@@ -259,16 +263,16 @@ class Record:
                           "AND stroke = ? ORDER BY t", [run_id, stroke])
 
     def export_parquet(self, out: str | Path) -> list[Path]:
-        """Every table (but the checkpoints) as ``OUT/<table>.parquet`` (DuckDB's own writer)."""
+        """The record's tables (:data:`EXPORTED`, those the file holds) as
+        ``OUT/<table>.parquet`` (DuckDB's own writer); other tables in the file are left."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         files = []
-        tables = [r[0] for r in self.con.execute(
-            "SELECT table_name FROM information_schema.tables WHERE table_name != "
-            "'checkpoints' ORDER BY table_name").fetchall()]
-        for table in tables:
+        held = {r[0] for r in self.con.execute(
+            "SELECT table_name FROM information_schema.tables").fetchall()}
+        for table in (t for t in EXPORTED if t in held):
             f = out / f"{table}.parquet"
-            self.con.execute(f"COPY {table} TO '{_quote(f)}' (FORMAT PARQUET)")
+            self.con.execute(f'COPY "{table}" TO \'{_quote(f)}\' (FORMAT PARQUET)')
             files.append(f)
         return files
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .record import Record
+from .scenarios import SCENARIO_NAME
 
 JOINED = """
 SELECT s.*, t.* EXCLUDE (scenario, seed, stroke)
@@ -261,6 +262,8 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
         result: dict[str, Any] = {"db": str(db), "runs": {}}
         lines = ["# Operating record", "", f"Database: `{db}`", ""]
         for (sc, seed), ids in groups.items():
+            if not (isinstance(sc, str) and SCENARIO_NAME.fullmatch(sc)):
+                raise ValueError(f"{db}: scenario name {sc!r} cannot name a report file")
             scen = rec.run(ids[0])["config"]["scenario"]
             png = plot(rec, ids, out / f"{sc}_seed{seed}.png")
             lines += [f"## {sc} (seed {seed})", "", scen["description"], "",
@@ -315,7 +318,7 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
             lines += ["", f"![{sc}]({png.name})", "", "Per shift:", ""] + _shift_table(rec, ids)
             lines += ["", f"![{sc}, per hour]({hourly.name})", ""]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    (out / "report.json").write_text(json.dumps(result, indent=2, default=_json) + "\n",
+    (out / "report.json").write_text(json.dumps(_strict(result), indent=2, default=_json, allow_nan=False) + "\n",
                                      encoding="utf-8")
     return result
 
@@ -327,6 +330,20 @@ def _label(controller: str) -> str:
 
 def _f(v: Any, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
+
+
+def _strict(v: Any) -> Any:
+    """``v`` with every number that is not finite (a score never computed, no cut in a
+    window) as None: report.json is strict JSON."""
+    if isinstance(v, dict):
+        return {k: _strict(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_strict(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _strict(v.tolist())
+    if isinstance(v, (float, np.floating)):
+        return float(v) if np.isfinite(v) else None
+    return v
 
 
 def _json(v: Any) -> Any:

@@ -262,6 +262,8 @@ def operate(scenario: str | Scenario, controller: str, strokes: int = 5000,
     sc, env_config, env_record = on_rig(get_scenario(scenario), rig, rig_name)
     if not (isinstance(strokes, int) and strokes >= 1):
         raise ValueError(f"strokes = {strokes!r} must be an integer >= 1")
+    if isinstance(seed, bool) or not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ValueError(f"seed = {seed!r} must be an integer >= 0")
     if not (isinstance(block, int) and 1 <= block <= 1024):
         raise ValueError(f"block = {block!r} must be an integer in [1, 1024]")
     if not (isinstance(dwell_s, (int, float)) and 0.0 <= dwell_s <= 10.0):

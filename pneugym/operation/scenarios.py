@@ -40,6 +40,8 @@ PRESSURE_NOISE_PA = 400.0
 Knots = tuple[tuple[int, float], ...]
 #: a rig's name in a scenario's (``wear@my_rig``)
 RIG_LABEL = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+#: a scenario's name (``NAME`` or ``NAME@RIG``): it goes into run ids and report file names
+SCENARIO_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}(@[A-Za-z0-9_.-]{1,64})?")
 
 
 def _knots(name: str, value: Any) -> Knots:
@@ -78,6 +80,10 @@ class Scenario:
     friction_jitter: float = 0.02
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.name, str) and SCENARIO_NAME.fullmatch(self.name)):
+            raise ValueError(f"Scenario name {self.name!r}: letters, digits, '_', '-' and '.' "
+                             f"only, not starting with '.' (it goes into run ids and report "
+                             f"file names)")
         unknown = [k for k in self.drift if k not in QUANTITIES]
         if unknown:
             raise ValueError(f"Scenario {self.name!r}: {unknown[0]!r} is not a drifting quantity"
