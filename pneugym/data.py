@@ -32,6 +32,8 @@ from .plant import Plant
 
 FORMAT = "pneugym-measurement/1"
 REQUIRED_COLUMNS = ("t", "valve", "x", "p_drive", "p_exhaust")
+#: the largest run JSON read [bytes] (the metadata; the samples are in the CSV)
+MAX_JSON_BYTES = 1_000_000
 OPTIONAL_COLUMNS = ("p_supply", "mdot_supply", "T_drive")
 PRESSURE_COLUMNS = ("p_drive", "p_exhaust", "p_supply")
 #: Absolute pressures outside this range [Pa] are refused (bar or gauge by mistake).
@@ -308,6 +310,9 @@ def read_runs(paths: str | Path | Iterable[str | Path], base: RigParams | None =
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
+        if path.stat().st_size > MAX_JSON_BYTES:
+            raise MeasurementFormatError(f"{path}: {path.stat().st_size:,} bytes; a run's JSON "
+                                         f"holds its metadata only (at most {MAX_JSON_BYTES:,})")
         meta = json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicates,
                           parse_constant=lambda c: _raise(path, f"non-JSON constant {c}"))
     except json.JSONDecodeError as exc:
@@ -680,12 +685,27 @@ def write_run(run: MeasuredRun, path: str | Path) -> Path:
     arrays = [cols[n] for n in names]
     for i in range(len(run)):
         w.writerow([_fmt(a[i]) for a in arrays])
-    _with_ext(stem, ".csv").write_text(buf.getvalue(), encoding="utf-8")
     meta = dict(run.meta)
     meta.setdefault("format", FORMAT)
-    _with_ext(stem, ".json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n",
-                                         encoding="utf-8")
+    try:  # the JSON text first: a run whose metadata cannot be written leaves no file
+        text = json.dumps(meta, indent=2, allow_nan=False, default=_json_number) + "\n"
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"run {run.name!r}: its metadata cannot be written as JSON: {exc}"
+                         ) from None
+    from .outputs import atomic_write_text
+
+    # each file whole or not at all; the JSON last, so the pair is never a new CSV's with an
+    # old JSON
+    atomic_write_text(_with_ext(stem, ".csv"), buf.getvalue())
+    atomic_write_text(_with_ext(stem, ".json"), text)
     return stem
+
+
+def _json_number(v: Any) -> Any:
+    """A numpy scalar or array in the metadata (a seed, a noise level) as a JSON value."""
+    if isinstance(v, (np.generic, np.ndarray)):
+        return v.tolist()
+    raise TypeError(f"Object of type {type(v).__name__} is not JSON serializable")
 
 
 def _fmt(v: Any) -> str:
@@ -735,9 +755,16 @@ def simulate_run(params: RigParams, schedule: Sequence[tuple[float, int]] = ((0.
     if sensor_lag_s is not None:
         params = params.with_(effects={"sensor_lag_s": float(sensor_lag_s)})
     sd = dict(DEFAULT_NOISE) if noise == "default" else dict(noise or {})
-    unknown = sorted(set(sd) - set(REQUIRED_COLUMNS) - set(OPTIONAL_COLUMNS))
+    noisy = sorted(set(REQUIRED_COLUMNS) - {"t", "valve"}) + list(OPTIONAL_COLUMNS)
+    unknown = sorted(set(sd) - set(noisy))
     if unknown:
-        raise ValueError(f"noise given for unknown column(s) {unknown}")
+        raise ValueError(f"noise given for column(s) {unknown}: only measured channels carry "
+                         f"it ({', '.join(noisy)}); the time and the valve command are exact")
+    for c, s in sd.items():
+        if isinstance(s, bool) or not (isinstance(s, numbers.Real) and math.isfinite(s)
+                                       and s >= 0):
+            raise ValueError(f"noise[{c!r}] = {s!r} must be a standard deviation >= 0 "
+                             f"(in the column's unit)")
     dt = 1.0 / sample_rate_hz
     schedule = [(float(t), int(v)) for t, v in schedule]
     if cut_on_arrival:

@@ -225,6 +225,22 @@ def _check_yaml_nodes(root: Any, p: Path) -> None:
                 stack.append((name, value))
         elif isinstance(node, yaml.SequenceNode):
             stack += [(f"{where}[{i}]", v) for i, v in enumerate(node.value)]
+        elif (isinstance(node, yaml.ScalarNode) and node.style is None
+              and node.tag == "tag:yaml.org,2002:int" and _YAML11_INT.fullmatch(node.value)):
+            raise RigFileError(f"{p}: line {node.start_mark.line + 1}: {where} = {node.value}: "
+                               f"YAML 1.1 reads a leading 0 as octal, 0x as hex and 1:05 as "
+                               f"base 60 ({node.value} would be read as {_yaml_int(node)}); "
+                               f"write the number in decimal")
+
+
+#: plain integers YAML 1.1 reads in another base: 010 (octal), 0o10, 0x10, 0b10, 1:05 (60)
+_YAML11_INT = re.compile(r"[-+]?(0[0-9_]+|0[oxbOXB][0-9a-fA-F_]+|[0-9][0-9_]*(:[0-5]?[0-9])+)")
+
+
+def _yaml_int(node: Any) -> Any:
+    import yaml
+
+    return yaml.safe_load(node.value)
 
 
 def _join(where: str, key: Any) -> str:
@@ -352,7 +368,16 @@ def _from_params(doc: Mapping[str, Any], base: RigParams, where: str) -> RigPara
         else:
             _number(where, key, value)
             kw[key] = value
-    return _make(where, lambda: base.with_(**kw), lambda group, name: _join(group, name))
+    rig = _make(where, lambda: base.with_(**kw), lambda group, name: _join(group, name))
+    for key, value in kw.items():  # then the measurement form's plausible ranges (unit slips)
+        items = [("", value)] if key not in GROUPS else \
+            value.items() if isinstance(value, Mapping) else ()  # (a group object: checked)
+        for name, v in items:
+            spec = PLAUSIBLE.get(_MEASUREMENT_NAME.get((key, name), key if not name else ""))
+            if spec is not None and _real(v) and not spec.ok(float(v)):
+                raise RigFileError(f"{where}: key {_join(key, name) if name else key!r} = "
+                                   f"{v!r}: {spec.problem(float(v))}")
+    return rig
 
 
 def _names(cls: type) -> list[str]:

@@ -248,6 +248,36 @@ def test_bad_export_arguments():
         simulate_run(thesis_rig(2.5), optional=("p_port",))
     with pytest.raises(ValueError, match="noise"):
         simulate_run(thesis_rig(2.5), noise={"pressure": 1.0})
+    for bad, match in (({"valve": 0.05}, "the time and the valve command are exact"),
+                       ({"t": 1e-4}, "only measured channels"),
+                       ({"x": -1e-5}, r"noise\['x'\] = -1e-05 must be a standard deviation"),
+                       ({"p_drive": float("nan")}, "standard deviation"),
+                       ({"p_drive": True}, "standard deviation")):
+        with pytest.raises(ValueError, match=match):
+            simulate_run(thesis_rig(2.5), t_end=0.1, noise=bad)
+
+
+def test_write_run_writes_both_files_or_neither(tmp_path):
+    """A run whose metadata cannot be JSON leaves no file (and not a new CSV beside an old
+    JSON); numpy numbers in the metadata (a seed from np.arange) are written as numbers."""
+    run = simulate_run(thesis_rig(2.5), t_end=0.2, noise="default", seed=np.int64(3))
+    write_run(run, tmp_path / "a")
+    assert read_run(tmp_path / "a").meta["simulation"]["seed"] == 3
+    old = (tmp_path / "a.csv").read_text(), (tmp_path / "a.json").read_text()
+    other = simulate_run(thesis_rig(5.0), t_end=0.2)
+    other.meta["simulation"]["seed"] = float("nan")
+    with pytest.raises(ValueError, match="'simulated': its metadata cannot be written as JSON"):
+        write_run(other, tmp_path / "a")
+    assert ((tmp_path / "a.csv").read_text(), (tmp_path / "a.json").read_text()) == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "a.json"]
+
+
+def test_a_run_json_over_its_size_limit_is_refused(run_files, monkeypatch):
+    import pneugym.data as data
+
+    monkeypatch.setattr(data, "MAX_JSON_BYTES", 100)
+    with pytest.raises(MeasurementFormatError, match="a run's JSON holds its metadata only"):
+        read_run(run_files)
 
 
 # -- plausibility of the JSON: the likely unit mistake is named -------------------------------------

@@ -35,6 +35,10 @@ def test_leak_and_heat_share_one_hold_at_the_highest_supply():
     assert hold.sentence().startswith("`hold`: 2.5 bar gauge, 10 kg, cut off on arrival, recorded for 6 s: ")
     # the report's markdown reads the plan back from report.json
     assert RunPlan(**hold.to_dict()) == hold
+    import dataclasses
+
+    assert dataclasses.replace(hold, supply_pressure_gauge_pa=2.45e5).sentence().startswith(
+        "`hold`: 2.45 bar gauge")  # the plan a user follows: not rounded to 2.5
 
 
 def _completes(rig, bar):

@@ -11,7 +11,7 @@ from pneugym import RigParams, thesis_rig
 from pneugym.discrepancy.__main__ import main
 from pneugym.discrepancy.cases import FORM_RANGES, make_case
 from pneugym.discrepancy.datasets import ZILLEN_CHAMBERS, zillen_chamber
-from pneugym.discrepancy.hold import HoldDiscrepancy, HoldRecord
+from pneugym.discrepancy.hold import HoldDiscrepancy, HoldRecord, read_hold
 from pneugym.physics import layout as L
 from pneugym.plant import Plant
 
@@ -97,6 +97,13 @@ def test_bad_hold_records_are_refused(tmp_path):
     bad.write_text("0.000;3.8;7.6\nnot;a;row\n")
     with pytest.raises(ValueError, match="line 2"):
         zillen_chamber("bad", bad)
+    bad.write_text("0.000;3.8;7.6\n1.5;3.8;7.6\n")  # a time not in groups of three digits
+    with pytest.raises(ValueError, match="line 2"):
+        zillen_chamber("bad", bad)
+    # dense samples and one far later: the uniform grid would hold millions of samples
+    gap = HoldRecord("gap", np.r_[np.arange(30) * 1e-5, 60.0], np.full(31, 7e5))
+    with pytest.raises(ValueError, match="far from even.*6,000,001 samples"):
+        gap.uniform()
     with pytest.raises(ValueError, match="sigma_pa"):
         HoldDiscrepancy(sigma_pa=0.0)
 
@@ -138,6 +145,11 @@ def test_hold_through_the_cli(tmp_path, capsys):
     assert (tmp_path / "rep" / "chamber" / "hold.png").stat().st_size > 1000
     assert "Named: `none`" in (tmp_path / "rep" / "chamber" / "hold.md").read_text()
     assert "chamber: none" in capsys.readouterr().out
+    excel = tmp_path / "excel.csv"  # a byte-order mark and spaced header names, as Excel writes
+    excel.write_text("\ufeff t, p_drive\n" + "\n".join(f"{a:.3f}, {b:.1f}"
+                                                     for a, b in zip(rec.t, rec.p)),
+                     encoding="utf-8")
+    np.testing.assert_array_equal(read_hold(str(excel)).p, read_hold(str(path)).p)
     bad = tmp_path / "bad.csv"
     bad.write_text("time,pressure\n0,1\n")
     assert main(["--hold", str(bad), "--out", str(tmp_path / "rep2")]) == 2

@@ -169,6 +169,12 @@ def test_the_example_of_docs_rigs_md_is_the_thesis_rig_and_marks_the_calibrated_
     ("line.yaml", "rig: {line_length_m: 2500}\n", r"line.yaml: key 'rig.line_length_m'.*mm given as m\?"),
     ("tee.yaml", "line: {tee_volumes: [[0.3, 1.0]]}\n", r"tee.yaml: key 'line.tee_volumes': .*cm³ given as m³\?"),
     ("model.yaml", "line: {model: fast}\n", r"model.yaml: key 'line.model': .*'fd' or 'lumped'"),
+    ("delay.yaml", "valve: {delay_s: 4.9}\n",
+     r"delay.yaml: key 'valve.delay_s' = 4.9: .*valve delay.*ms given as s\?"),
+    ("octal.yaml", "load_mass_kg: 010\n", r"octal.yaml: line 1: load_mass_kg = 010: .*read as 8"),
+    ("sexa.yaml", "cylinder: {bore_m: 0.125}\nload_mass_kg: 1:05\n",
+     r"sexa.yaml: line 2: load_mass_kg = 1:05: .*base 60 .*read as 65"),
+    ("hex.yaml", "load_mass_kg: 0x10\n", r"hex.yaml: .*0x as hex"),
 ])
 def test_implausible_values_are_refused_naming_file_key_and_likely_unit(tmp_path, name, text, match):
     refused(write(tmp_path, name, text), match)

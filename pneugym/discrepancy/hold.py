@@ -50,6 +50,11 @@ HOLDOUT_SHARE = 1.0 / 3.0
 MIN_SAMPLES = 30
 #: a longer record [s] is refused (time in ms given as s?)
 MAX_DURATION_S = 3600.0
+#: a record whose uniform grid would hold more than this many times its samples is refused
+#: (a long gap between dense samples: the grid would exhaust memory)
+MAX_UNIFORM_FACTOR = 10
+#: a larger hold CSV [bytes] is refused
+MAX_HOLD_BYTES = 100_000_000
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,14 @@ class HoldRecord:
         """The record on a uniform grid of its median sample interval (linear interpolation):
         the statistics assume evenly spaced samples."""
         dt = float(np.median(np.diff(self.t)))
+        n = int(self.t[-1] / dt) + 1
+        if n > MAX_UNIFORM_FACTOR * self.t.size + 100:
+            gap = float(np.max(np.diff(self.t)))
+            raise ValueError(f"hold record {self.name!r}: its samples are far from even (a gap "
+                             f"of {gap:.3g} s against a median interval of {dt:.3g} s): on a "
+                             f"uniform grid it would hold {n:,} samples, more than "
+                             f"{MAX_UNIFORM_FACTOR} times its {self.t.size:,}; record it at an "
+                             f"even rate or resample it first")
         t = np.arange(0.0, self.t[-1] + 0.5 * dt, dt)
         return HoldRecord(self.name, t, np.interp(t, self.t, self.p), self.ambient_pressure_pa,
                           self.ambient_temperature_k, self.volume_m3, self.source)
@@ -406,8 +419,13 @@ def read_hold(path: str) -> HoldRecord:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"hold record {path}: no such file")
-    with open(p, newline="", encoding="utf-8") as f:
+    if p.stat().st_size > MAX_HOLD_BYTES:
+        raise ValueError(f"hold record {path}: {p.stat().st_size:,} bytes, more than "
+                         f"{MAX_HOLD_BYTES:,} (an hour at 1 kHz takes about 60 MB)")
+    with open(p, newline="", encoding="utf-8-sig") as f:
         rows = list(csv.reader(f))
+    if rows:
+        rows[0] = [c.strip() for c in rows[0]]
     if not rows or not {"t", "p_drive"} <= set(rows[0]):
         raise ValueError(f"hold record {path}: the header must name the columns t [s] and "
                          f"p_drive [Pa absolute]")
