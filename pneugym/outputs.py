@@ -13,7 +13,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 
 class OutputError(ValueError):
@@ -93,11 +93,12 @@ def _blocked(target: Path, dest: Path) -> bool:
 
 
 @contextlib.contextmanager
-def staged_files(out: str | Path) -> Iterator[Path]:
+def staged_files(out: str | Path, replaces: Sequence[str] = ()) -> Iterator[Path]:
     """Write a set of files as a whole: the block writes into a staging folder inside ``out``;
     when it finishes, every staged file is renamed into ``out`` (each rename atomic) after
     checking that no target is a folder; when the block or a check fails, nothing in ``out``
-    changes and the staging folder is removed.
+    changes and the staging folder is removed. ``replaces``: glob patterns of the files in
+    ``out`` the set replaces whole: those the block did not write again are removed then.
 
     >>> with staged_files("report") as stage:      # doctest: +SKIP
     ...     (stage / "report.json").write_text("{}")
@@ -112,9 +113,13 @@ def staged_files(out: str | Path) -> Iterator[Path]:
             if _blocked(target, dest):
                 raise OutputError(f"cannot write {target}: a folder or file is in the way; "
                                   f"nothing in {dest} was changed")
+        written = {f.relative_to(stage) for f in files}
         for f in files:
             target = dest / f.relative_to(stage)
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(f, target)
+        for old in {p for pattern in replaces for p in dest.glob(pattern)}:
+            if old.is_file() and old.relative_to(dest) not in written:
+                old.unlink()
     finally:
         shutil.rmtree(stage, ignore_errors=True)

@@ -96,6 +96,16 @@ def _processes(fn, tasks, workers, bar) -> list[Any]:
     return out
 
 
+def ray_problem(ray_address: str | None) -> str | None:
+    """Why ``--ray-address`` cannot be used here (Ray not installed), for the command lines to
+    refuse before any work; None if it can (or is not given)."""
+    import importlib.util
+
+    if ray_address is not None and importlib.util.find_spec("ray") is None:
+        return '--ray-address needs Ray: pip install -e ".[ray]"'
+    return None
+
+
 def ray_init(ray_address: str, workers: int = 1, pythonpath: Sequence[str] = ()) -> None:
     """Connect to Ray (``"local"``: start one here with ``workers`` CPUs), once per process;
     ``pythonpath`` as in :func:`run_tasks`."""
@@ -117,9 +127,9 @@ def ray_init(ray_address: str, workers: int = 1, pythonpath: Sequence[str] = ())
 
 
 def _ray(fn, tasks, workers, ray_address, bar, num_cpus, pythonpath) -> list[Any]:
+    ray_init(ray_address, workers, pythonpath)  # (refuses a missing Ray with a ValueError)
     import ray
 
-    ray_init(ray_address, workers, pythonpath)
     remote = ray.remote(num_cpus=num_cpus, max_retries=0)(_call)
     refs = [remote.remote(fn, t) for t in tasks]
     index = {ref: i for i, ref in enumerate(refs)}

@@ -243,6 +243,17 @@ def _yaml_int(node: Any) -> Any:
     return yaml.safe_load(node.value)
 
 
+def yaml11_int(text: str) -> int | None:
+    """The integer YAML 1.1 reads a plain scalar ``text`` as, when it is one written in another
+    base than ten (``010`` is 8, ``0x10`` 16, ``1:05`` 65); else None."""
+    import yaml
+
+    if not _YAML11_INT.fullmatch(text):
+        return None
+    v = yaml.safe_load(text)
+    return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+
 def _join(where: str, key: Any) -> str:
     return f"{where}.{key}" if where else str(key)
 

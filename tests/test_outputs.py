@@ -75,6 +75,25 @@ def test_staged_files_replace_the_set_only_when_all_is_written(tmp_path):
                                                                   "b.txt": "new b"}
 
 
+def test_staged_files_remove_what_the_set_owns_and_did_not_write_again(tmp_path):
+    """An evaluation's plots of a suite not run again go with the set they belonged to; other
+    files stay (a user's own, or ones the pattern does not name)."""
+    from agents.evaluation.outputs import OWNED
+
+    for name in ("results.json", "robustness_heatmaps.png", "transfer_saving_vs_time.png",
+                 "mine.png", "notes.md"):
+        (tmp_path / name).write_text("old")
+    with staged_files(tmp_path, replaces=OWNED) as st:
+        (st / "results.json").write_text("new")
+        (st / "nominal_saving_vs_time.png").write_text("new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "mine.png", "nominal_saving_vs_time.png", "notes.md", "results.json"]
+    with pytest.raises(RuntimeError):  # a failed set removes nothing
+        with staged_files(tmp_path, replaces=OWNED) as st:
+            raise RuntimeError("disk full")
+    assert (tmp_path / "nominal_saving_vs_time.png").exists()
+
+
 def test_staged_files_check_every_target_before_moving_any(tmp_path):
     """A folder where a result file goes must not leave half a set (results.csv moved, then
     results.json failing)."""

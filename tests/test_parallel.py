@@ -288,3 +288,24 @@ def test_train_command_line_refuses(tmp_path, capsys, args, msg):
     with pytest.raises(SystemExit) as exc:
         main(["--algo", "esac", "--out", str(tmp_path / "out"), *args])
     assert exc.value.code == 2 and msg in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--algo", "esac", "--seeds", "0-1", "--ray-address", "local"],
+    ["evaluate", "--policies", "gaslaw", "--ray-address", "local"],
+])
+def test_ray_address_without_ray_is_refused_before_any_work(argv, tmp_path, monkeypatch, capsys):
+    """Without Ray installed, --ray-address exits 2 with how to install it, before training or
+    evaluating anything (it raised ModuleNotFoundError after the work)."""
+    import importlib.util
+
+    from pneugym.cli import main
+
+    find = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "ray" else find(name, *a))
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--out", str(tmp_path / "out")])
+    assert exc.value.code == 2
+    assert '--ray-address needs Ray: pip install -e ".[ray]"' in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

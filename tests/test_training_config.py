@@ -88,13 +88,53 @@ def test_configs_and_refusals(tmp_path):
                                         r"ConditionSpace fields"),
     ("ppo", ["env.conditions.load_mass_kg=-1"], r"env.conditions = .*load_mass_kg = -1.0 is "
                                                 r"invalid"),
+    ("esac", ["env.observe_commissioning=true"], r"--set env.observe_commissioning=true: env: "
+                                                 r"observe_commissioning=True needs observe_rig"),
+    ("ppo", ["env.history=010"], r"--set 'env.history=010': the value '010' would be read as 8"),
+    ("ppo", ["eval_every=0x100"], r"would be read as 256"),
+    ("ppo", ["env.num_envs=16"], None),  # (seed 999,990 below: environments 10-15 would not be)
 ])
 def test_config_errors_are_refused_before_anything_is_written(tmp_path, nothing_runs, algo,
                                                               overrides, match):
     d = tmp_path / "run"
+    seed = 1 if match else 999_990
+    match = match or r"env.num_envs=16: training seeds 999990..1000005 must lie in \[0, 1000000\)"
     with pytest.raises(training.ConfigError, match=match):
-        training.train(algo, d, timesteps=256, seed=1, progress=False, overrides=overrides)
+        training.train(algo, d, timesteps=256, seed=seed, progress=False, overrides=overrides)
     assert not d.exists()
+
+
+def test_a_rig_file_and_rig_overrides_together_are_refused(tmp_path):
+    with pytest.raises(training.ConfigError, match=r"--set rig.load_mass_kg=20: --rig replaces "
+                                                   r"the configuration's rig section"):
+        training.load_config("esac", overrides=["rig.load_mass_kg=20"],
+                             rig={"load_mass_kg": 12.0})
+    cfg = training.load_config("esac", overrides=["rig.load_mass_kg=20"])  # without --rig: kept
+    assert cfg["rig"]["load_mass_kg"] == 20
+
+
+def test_a_run_that_fails_says_so_in_its_folder(tmp_path, monkeypatch):
+    import json
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the disk is full")
+
+    monkeypatch.setattr(esac, "train_esac", broken)
+    with pytest.raises(RuntimeError, match="the disk is full"):
+        training.train("esac", tmp_path / "run", timesteps=8, seed=1, progress=False)
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["status"] == "failed" and run["error"] == "RuntimeError: the disk is full"
+    with pytest.raises(ValueError) as exc:  # ESAC keeps no checkpoints: no --resume advice
+        training.train("esac", tmp_path / "run", timesteps=8, seed=1, progress=False)
+    assert "failed: RuntimeError" in str(exc.value) and "--resume" not in str(exc.value)
+
+
+def test_tuned_values_reach_the_config_as_they_were():
+    from agents.training.tune import _overrides
+
+    cfg = training.load_config("ppo", overrides=_overrides({"algo.target_kl": None,
+                                                           "algo.learning_rate": 1e-4}))
+    assert cfg["algo"]["target_kl"] is None and cfg["algo"]["learning_rate"] == 1e-4
 
 
 @pytest.mark.parametrize("argv, match", [

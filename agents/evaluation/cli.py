@@ -111,6 +111,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers {args.workers}: must be >= 1")
+    from pneugym.parallel import ray_problem
+
+    if ray_problem(args.ray_address):
+        ap.error(ray_problem(args.ray_address))
     for flag, v in (("--commission-starts", args.commission_starts),
                     ("--commission-nfev", args.commission_nfev)):
         if v is not None and v < 1:

@@ -44,10 +44,17 @@ def print_table(results: dict[str, Any]) -> None:
           "oracle's gain over conventional)")
 
 
+#: the files an evaluation writes into ``--out`` (a new set replaces every one of them: a plot
+#: of a suite not run again is removed, not left beside results it does not belong to)
+OWNED = ("results.json", "results.csv", "*_saving_vs_time.png", "robustness_heatmaps.png",
+         "*_oracle_fraction_per_rig.png", "example_trajectories.png")
+
+
 def write_outputs(results: dict[str, Any], out: str | Path) -> None:
     """results.json, results.csv and the plots, replacing those in ``out`` only once all are
-    written (an error leaves the previous set untouched)."""
-    with staged_files(out) as stage:
+    written (an error leaves the previous set untouched); the evaluation's files of an earlier
+    set that this one does not write (:data:`OWNED`) are removed."""
+    with staged_files(out, replaces=OWNED) as stage:
         atomic_write_json(stage / "results.json", results)
         rows = [r for s in results["suites"].values() for r in s["episodes"]]
         if rows:

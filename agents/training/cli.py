@@ -100,6 +100,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     out = args.out if args.out is not None else f"runs/{args.algo}{many}"  # "" is refused
     if args.workers < 1:
         ap.error(f"--workers {args.workers}: must be >= 1")
+    from pneugym.parallel import ray_problem
+
+    if ray_problem(args.ray_address):
+        ap.error(ray_problem(args.ray_address))
     if args.tune is not None:
         return _tune(ap, args, out)
     if args.seeds is not None or args.workers != 1 or args.ray_address is not None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from .checks import Bad, Section
 from .schema import config_schema
@@ -50,7 +50,9 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
     path = Path(path) if path else CONFIG_DIR / f"{algo}.yaml"
     try:
         with open(path, encoding="utf-8") as f:
-            doc = yaml.safe_load(f)
+            text = f.read()
+        doc = yaml.safe_load(text)
+        _refuse_yaml11_ints(yaml.compose(text), path)
     except OSError as exc:
         raise ConfigError(f"--config {path} cannot be read: {exc.strerror or exc}; give the path "
                           f"of a YAML file like configs/{algo}.yaml") from None
@@ -97,6 +99,8 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item!r}: the value {val!r} is not valid YAML "
                               f"({' '.join(str(exc).split())})") from None
+        except ConfigError as exc:
+            raise ConfigError(f"--set {item!r}: {exc}") from None
         origins[".".join(parts)] = f"--set {item}"
     for key, flag in (("algo_name", "--algo"), ("budget", "--budget")):
         if key in cfg:  # train.py records them: a value from the file or --set would be lost
@@ -109,6 +113,11 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
     if rig is not None:
         from pneugym.params import RigParams
 
+        over = [o for o in origins if o == "rig" or o.startswith("rig.")]
+        if over:
+            raise ConfigError(f"{origins[over[0]]}: --rig replaces the configuration's rig "
+                              f"section, so this override would be lost: write the value in "
+                              f"the rig file, or leave out --rig")
         cfg["rig"] = rig.to_dict() if isinstance(rig, RigParams) else rig
         origins["rig"] = f"--rig {rig}" if not isinstance(rig, (RigParams, Mapping)) else "--rig"
     cfg["algo_name"] = algo
@@ -118,10 +127,38 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
     return cfg
 
 
-def _parse_value(text: str) -> Any:
-    """A ``--set`` value as YAML, with numbers like ``1e-4`` (a string in YAML 1.1) as floats."""
+def _refuse_yaml11_ints(root: Any, path: Path) -> None:
+    """Refuse plain integers YAML 1.1 reads in another base (``010`` is 8) in a config file."""
     import yaml
 
+    from pneugym.rigfile import yaml11_int
+
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            stack += [v for kv in node.value for v in kv]
+        elif isinstance(node, yaml.SequenceNode):
+            stack += node.value
+        elif isinstance(node, yaml.ScalarNode) and node.style is None:
+            bad = yaml11_int(node.value)
+            if bad is not None:
+                raise ConfigError(f"{path}: line {node.start_mark.line + 1}: {node.value} would "
+                                  f"be read as {bad} (YAML 1.1 reads a leading 0 as octal, 0x "
+                                  f"as hex, 1:30 as base 60): write it in decimal")
+
+
+def _parse_value(text: str) -> Any:
+    """A ``--set`` value as YAML, with numbers like ``1e-4`` (a string in YAML 1.1) as floats;
+    YAML 1.1's integers in another base (``010`` read as 8, ``0x10``, ``1:30``) are refused."""
+    import yaml
+
+    from pneugym.rigfile import yaml11_int
+
+    bad = yaml11_int(text.strip())
+    if bad is not None:
+        raise ConfigError(f"the value {text.strip()!r} would be read as {bad} (YAML 1.1 reads a "
+                          f"leading 0 as octal, 0x as hex, 1:30 as base 60): write it in decimal")
     v = yaml.safe_load(text)
     if isinstance(v, str):
         try:
@@ -235,6 +272,7 @@ def check_config(cfg: dict[str, Any], algo: str, seed: int | None = None,
         if any(looks) and not cfg["fit"].get("delay_input", False):
             raise fail("rule_grid.lookahead", "rule_grid.lookahead has 1, but the lookahead "
                        "needs a predictor trained with fit.delay_input: true")
+        _check_env(cfg, fail, privileged=False)
         return cfg
     # stable-baselines3
     from agents.learned import decision_value_problem
@@ -272,15 +310,27 @@ def check_config(cfg: dict[str, Any], algo: str, seed: int | None = None,
                 raise fail(key, f"{key}: {rule} value {v!r}: {problem}")
     env = cfg.get("env") or {}
     n_env = env.get("num_envs", 16)
+    if seed is not None and isinstance(n_env, int):
+        try:  # environment i of the vector trains on seed + i
+            check_seed("training", seed, max(n_env, 1))
+        except ValueError as exc:
+            raise fail("env.num_envs", f"{exc} (the {n_env} training environments take "
+                                       f"--seed {seed} + 0..{n_env - 1})") from None
     if algo == "ppo" and cfg.get("algo", {}).get("n_steps", 2048) * n_env <= 1:
         raise fail("algo.n_steps", "algo.n_steps x env.num_envs must be > 1 (PPO's rollout)")
+    _check_env(cfg, fail, privileged=bool(cfg.get("privileged_critic")))
+    return cfg
+
+
+def _check_env(cfg: Mapping[str, Any], fail: Callable[[str, str], Exception],
+               privileged: bool) -> None:
+    """The environment checks its own options (``env``, the preset and the rig)."""
     from pneugym.envs.cutoff import CutOffVectorEnv
 
-    opts = {k: v for k, v in env.items() if k != "num_envs"}
-    try:  # the environment checks its own options
+    opts = {k: v for k, v in (cfg.get("env") or {}).items() if k != "num_envs"}
+    try:
         CutOffVectorEnv(num_envs=1, preset=cfg["preset"], rig=cfg.get("rig"),
-                        observe_params=bool(cfg.get("privileged_critic")), **opts)
+                        observe_params=privileged, **opts)
     except (ValueError, TypeError) as exc:
         keys = [k for k in opts if k in str(exc)] or list(opts) or ["env"]
         raise fail(f"env.{keys[0]}", f"env: {exc}") from None
-    return cfg

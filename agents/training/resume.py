@@ -56,10 +56,13 @@ def occupied(out: Path, prev: Mapping[str, Any] | None) -> str:
         status = prev.get("status")
         how = {"finished": "finished",
                "interrupted": f"interrupted at {prev.get('timesteps_done', 0)} timesteps",
-               "running": "running, or killed"}.get(str(status), f"status {status!r}")
-        return (f"{out} holds a {prev.get('algo')} run ({how}): continue it with --resume, start "
-                f"it over with --force (removes its model, checkpoints and logs), or choose "
-                f"another --out")
+               "running": "running, or killed",
+               "failed": f"failed: {str(prev.get('error', ''))[:200]}"}.get(
+                   str(status), f"status {status!r}")
+        again = "" if prev.get("algo") == "esac" else \
+            "continue it with --resume, "  # (ESAC keeps no checkpoints)
+        return (f"{out} holds a {prev.get('algo')} run ({how}): {again}start it over with "
+                f"--force (removes its model, checkpoints and logs), or choose another --out")
     names = sorted(p.name for p in out.iterdir())
     return (f"{out} is not empty ({len(names)} entries: {', '.join(names[:5])}"
             f"{', ...' if len(names) > 5 else ''}) and holds no {RUN_FILE}: it is not a train.py "

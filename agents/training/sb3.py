@@ -20,7 +20,7 @@ from .callbacks import AfterEval, Checkpoints, ProgressBar, StopOnRequest
 from .checkpoints import load_checkpoint, restore_replay_buffer
 from .config import DEFAULT_CACHE_DIR
 from .rundir import atomic_save_sb3, checkpoint_of, read_run
-from .seeds import check_seed
+from .seeds import MAX_TRAINING_SEED, check_seed
 from .signals import StopRequest, TrainingInterrupted
 from .validation import validation_conditions, validation_references
 
@@ -151,7 +151,9 @@ def train_sb3(cfg: dict[str, Any], out: Path, seed: int, resume: bool, progress:
         if algo == "dqn":
             restore_replay_buffer(model, ckpt, trust_pickle)
         # a fresh stream of training conditions after the resume
-        venv.seed(seed + 7919 * (model.num_timesteps // 1000 + 1) % 100_000)
+        # (environment i takes seed + i: all of them stay training seeds)
+        venv.seed((seed + 7919 * (model.num_timesteps // 1000 + 1) % 100_000)
+                  % (MAX_TRAINING_SEED - num_envs))
         model._last_obs = None
     else:
         policy, pkw = "MlpPolicy", dict(cfg.get("policy_kwargs") or {})

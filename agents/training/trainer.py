@@ -159,6 +159,10 @@ def train(algo: str, out: str | Path, preset: str | None = None, timesteps: int 
             "signal": sig, "timesteps_done": done, "checkpoint": run.get("checkpoint")
             if algo != "esac" else None, "wall_s": time.perf_counter() - t0})
         raise TrainingInterrupted(sig, done, run) from None
+    except Exception as exc:  # the folder says so (not "running" for ever)
+        record(status="failed", error=f"{type(exc).__name__}: {exc}"[:2000],
+               wall_s=time.perf_counter() - t0)
+        raise
     summary["total_wall_s"] = time.perf_counter() - t0 + (
         float(prev.get("total_wall_s", 0.0)) if resume else 0.0)
     record(status="finished", **summary)

@@ -16,6 +16,8 @@ Needs ``pip install "pneugym[ray]"``.
 """
 from __future__ import annotations
 
+import json
+
 import math
 import time
 from pathlib import Path
@@ -84,7 +86,9 @@ def _ray_space(space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def _overrides(values: Mapping[str, Any]) -> list[str]:
-    return [f"{k}={v}" for k, v in values.items()]
+    """A trial's values as ``--set`` items, each value as JSON (a YAML ``--set`` reads it back
+    as it was: ``null`` for None, a quoted text for a string)."""
+    return [f"{k}={json.dumps(v)}" for k, v in values.items()]
 
 
 def _trial(config: dict[str, Any], algo: str, root: str, seed: int,
