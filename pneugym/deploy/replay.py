@@ -124,8 +124,9 @@ def commissioning_for(run: Any, strokes: Sequence[Any], supply_gauge_pa: float,
     have = ", ".join(f"{float(s.meta['supply_pressure_gauge_pa']) / 1e5:g} bar g / "
                      f"{float(s.meta.get('load_mass_kg', load_kg)):g} kg" for s in strokes)
     raise ValueError(f"{run.name}: the policy reads a commissioning stroke (extend, cut off on "
-                     f"arrival, held 1.5 s) at the run's operating point, {supply_gauge_pa / 1e5:g} "
-                     f"bar g / {load_kg:g} kg; give one (--commissioning RUN)"
+                     f"arrival, held 1.5 s) at the run's operating point, "
+                     f"{supply_gauge_pa / 1e5:g} bar g / {load_kg:g} kg; give one "
+                     f"(--commissioning RUN)"
                      + (f": those given are at {have}" if have else ""))
 
 

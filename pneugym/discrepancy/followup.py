@@ -58,7 +58,8 @@ class RunPlan:
         """The plan in one line, for the report and the summary."""
         cut = (f"cut off at {self.cut_s:g} s" if self.cut == "at" else
                {"never": "never cut", "arrival": "cut off on arrival"}[self.cut])
-        return (f"`{self.name}`: {self.supply_pressure_gauge_pa / 1e5:.3g} bar gauge, {self.load_mass_kg:g} kg, "
+        return (f"`{self.name}`: {self.supply_pressure_gauge_pa / 1e5:.3g} bar gauge, "
+                f"{self.load_mass_kg:g} kg, "
                 f"{cut}, recorded for {self.t_end_s:g} s: {self.why}")
 
     def schedule(self) -> list[tuple[float, int]]:

@@ -62,7 +62,8 @@ def air_cost(effect: dict[str, float], cut_s: float | None, supply_gauge_pa: flo
     """Free air [NL] per stroke with and without the fitted ``effect`` (``{EffectParams field:
     value}``, or ``{"group.field": value}`` for another rig field, e.g. ``valve.delay_scale``): a
     conventional stroke and a stroke cut at ``cut_s`` [s] (None: the window's strokes were
-    never cut; the cut stroke is then the conventional one), on the commissioned rig (``rig``, default
+    never cut; the cut stroke is then the conventional one), on the commissioned rig (``rig``,
+    default
     the thesis rig), each with the rest at the stroke end (``dwell_s``, default the operating
     :data:`~pneugym.operation.run.DWELL_S`)."""
     from agents.oracle import TimedCutPolicy

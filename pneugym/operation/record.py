@@ -5,7 +5,8 @@ Tables (one database may hold many runs: a run is one scenario, seed and control
 - ``runs``: ``run_id``, scenario, seed, controller, strokes asked, the configuration and the
   versions (JSON), status.
 - ``strokes``: one row per stroke: the supply set-point it ran at (``supply_setpoint_pa``,
-  gauge [Pa]: the operator's set-point, as the rig file's supply), what the controller decided (``cutoff_time_s``, its
+  gauge [Pa]: the operator's set-point, as the rig file's supply), what the controller
+  decided (``cutoff_time_s``, its
   ``controller_version``, whether it was a ``reference`` stroke or an ``explore`` one) and
   the measured outcome (completion, stall, stick-slips, stroke time, final position, wasted
   energy, free air; ``energy_conventional_j``, the driving side's energy filled to supply at

@@ -318,7 +318,8 @@ def write_report(db: str | Path, out: str | Path, run_ids: list[str] | None = No
             lines += ["", f"![{sc}]({png.name})", "", "Per shift:", ""] + _shift_table(rec, ids)
             lines += ["", f"![{sc}, per hour]({hourly.name})", ""]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    (out / "report.json").write_text(json.dumps(_strict(result), indent=2, default=_json, allow_nan=False) + "\n",
+    (out / "report.json").write_text(json.dumps(_strict(result), indent=2, default=_json,
+                                                allow_nan=False) + "\n",
                                      encoding="utf-8")
     return result
 
