@@ -227,13 +227,15 @@ def _truth_at(cuts: list, policy, c, truth_j: dict) -> None:
 def _fit(runs, law_models, opts: dict, where: Path | None, draw: dict):
     """The commissioning fit of ``runs`` (``law_models``: the orifice laws tried), kept in
     folder ``where`` with what it was fitted for (``draw``: the seed and draw, the laws, the
-    options; ``fit_key.json``) and read from there when it is already; a kept fit of another
-    draw or other options is refused (a folder kept before the key was written is taken; a fit
+    options, the fit's procedure :data:`~pneugym.commission.FIT_VERSION`; ``fit_key.json``) and
+    read from there when it is already; a kept fit of another draw, other options or an
+    earlier procedure is refused (a folder kept before the key was written is taken; a fit
     below the misfit flag is the same with any ``refit_starts``, so a run that refits may reuse
     one fitted without)."""
-    from pneugym.commission import MISFIT_FLAG, Commissioned, commission
+    from pneugym.commission import FIT_VERSION, MISFIT_FLAG, Commissioned, commission
 
-    key = json.loads(json.dumps({**draw, "orifice_models": law_models,
+    key = json.loads(json.dumps({**draw, "fit_version": FIT_VERSION,
+                                 "orifice_models": law_models,
                                  "commission": {k: v for k, v in opts.items()
                                                 if k != "n_jobs"}}))  # (jobs change nothing)
     if where is not None and (where / "commissioning.json").is_file():

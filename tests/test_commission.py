@@ -21,6 +21,7 @@ from pneugym.commission import (ORIFICE_MODELS, Commissioned, commission,
                                 commissioning_protocol, delay_guess, fitted_params, main,
                                 report_markdown)
 from pneugym.data import write_run
+from pneugym.discrepancy.fit import Problem
 from pneugym.envs import Conditions
 from pneugym.envs.cutoff import CutOffVectorEnv
 from pneugym.params import RigParams
@@ -324,6 +325,34 @@ def test_a_fit_far_above_the_noise_is_refitted_from_further_starts(runs, monkeyp
         commission(runs, refit_starts=-1)
 
 
+def test_a_first_fit_on_the_area_cap_goes_on_from_its_end_and_from_its_start(monkeypatch):
+    """The first fits cap the flow areas at FAST_AREA_FACTOR x stated (a coarser substep); on a
+    rig whose exhaust is wider, the capped fit bends the other parameters, so it goes on with
+    the full bounds from where it ended and from its own start, the better kept."""
+    import pneugym.commission as commissioning
+
+    truth = KNOWN.with_(valve={"exhaust_area_m2": 2.6 * KNOWN.valve.exhaust_area_m2})
+    runs = commissioning_protocol(truth, KNOWN, seed=3)
+    seen, solve = [], commissioning.solve
+
+    def spy(job):
+        seen.append((job, solve(job)))
+        return seen[-1][1]
+
+    monkeypatch.setattr(commissioning, "solve", spy)
+    m = commission(runs, starts=1, max_nfev=6, extras=False, line_models=["fd"])
+    exh = [p.path for p in m.params].index("valve.exhaust_area_m2")
+    (first, capped), *full = seen
+    assert first.params[exh].hi == commissioning.FAST_AREA_FACTOR
+    end = Problem(first.runs, [], first.sigma, first.params).values(capped[0])
+    assert end[exh] >= 0.99 * commissioning.FAST_AREA_FACTOR  # ended on the cap
+    assert [j.params[exh].hi for j, _ in full] == [5.0, 5.0]
+    assert full[0][0].start == pytest.approx(end)  # where it ended
+    assert np.array_equal(full[1][0].start, first.start)  # its start
+    assert m.ssr == min(r[1] for _, r in full) < capped[1]
+    assert m.values[exh] > commissioning.FAST_AREA_FACTOR and m.misfit < 3.0
+
+
 def test_the_fitted_parameters_stay_physical():
     ps = {p.path: p for p in fitted_params(KNOWN)}
     assert ps["cylinder.cushion_length_m"].hi * KNOWN.cylinder.cushion_length_m \
@@ -407,15 +436,19 @@ def test_a_rig_of_a_suite_runs_as_a_task_of_its_own_with_the_same_records():
 def test_the_plan_bench_keeps_fits_per_draw_and_writes_strict_json(model, tmp_path, monkeypatch,
                                                                    load_bench):
     """bench_mpc_plan.py's kept fits carry what they were fitted for: a folder kept for another
-    draw or other options is refused, not planned on; its results hold no infinity."""
+    draw, other options or an earlier fitting procedure is refused, not planned on; its
+    results hold no infinity."""
+    import pneugym.commission as commissioning
+
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
     bench = load_bench("bench_mpc_plan")
     where = tmp_path / "0-stated law"
     model.save(where)
     opts = {"starts": 2, "max_nfev": 40, "refit_starts": 4}
     key = {"seed": 3, "draw": 0}
+    version = {"fit_version": commissioning.FIT_VERSION}
     (where / "fit_key.json").write_text(json.dumps(
-        {**key, "orifice_models": None, "commission": {**opts, "refit_starts": 0}}))
+        {**key, **version, "orifice_models": None, "commission": {**opts, "refit_starts": 0}}))
     assert model.misfit <= 9  # a fit below the flag: the same with any refit_starts
     assert bench._fit(None, None, {**opts, "n_jobs": 2}, where, key).ssr == model.ssr
     with pytest.raises(SystemExit, match="another --fits folder"):
@@ -428,7 +461,11 @@ def test_the_plan_bench_keeps_fits_per_draw_and_writes_strict_json(model, tmp_pa
         bench._fit(None, None, opts, where, key)
     model.save(where)
     (where / "fit_key.json").write_text(json.dumps(
-        {**key, "orifice_models": None, "commission": opts}))
+        {**key, **version, "orifice_models": None, "commission": opts}))
     assert bench._fit(None, None, {**opts, "n_jobs": 1}, where, key).ssr == model.ssr
+    (where / "fit_key.json").write_text(json.dumps(  # a fit of the procedure before
+        {**key, "orifice_models": None, "commission": opts}))
+    with pytest.raises(SystemExit, match="another --fits folder"):
+        bench._fit(None, None, opts, where, key)
     assert json.dumps(bench._finite({"cut": math.inf, "x": [1.0, -math.inf]}),
                       allow_nan=False) == '{"cut": null, "x": [1.0, null]}'
