@@ -226,21 +226,15 @@ def _check_yaml_nodes(root: Any, p: Path) -> None:
         elif isinstance(node, yaml.SequenceNode):
             stack += [(f"{where}[{i}]", v) for i, v in enumerate(node.value)]
         elif (isinstance(node, yaml.ScalarNode) and node.style is None
-              and node.tag == "tag:yaml.org,2002:int" and _YAML11_INT.fullmatch(node.value)):
+              and yaml11_int(node.value) is not None):
             raise RigFileError(f"{p}: line {node.start_mark.line + 1}: {where} = {node.value}: "
                                f"YAML 1.1 reads a leading 0 as octal, 0x as hex and 1:05 as "
-                               f"base 60 ({node.value} would be read as {_yaml_int(node)}); "
-                               f"write the number in decimal")
+                               f"base 60 ({node.value} would be read as "
+                               f"{yaml11_int(node.value)}); write the number in decimal")
 
 
 #: plain integers YAML 1.1 reads in another base: 010 (octal), 0o10, 0x10, 0b10, 1:05 (60)
 _YAML11_INT = re.compile(r"[-+]?(0[0-9_]+|0[oxbOXB][0-9a-fA-F_]+|[0-9][0-9_]*(:[0-5]?[0-9])+)")
-
-
-def _yaml_int(node: Any) -> Any:
-    import yaml
-
-    return yaml.safe_load(node.value)
 
 
 def yaml11_int(text: str) -> int | None:
