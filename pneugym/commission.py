@@ -357,7 +357,9 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         jobs = [Job(prepared, form_bases[m, laws[0]], sigma, fast, _inside(s, fast), max_nfev)
                 for m in lines for s in starts_u]
         which = [(m, laws[0]) for m in lines for _ in starts_u]
-        results = executor.map(solve, jobs)
+        return past_cap(jobs, which, executor.map(solve, jobs))
+
+    def past_cap(jobs: list, which: list, results: list) -> tuple[list, list, list]:
         # a fit on the cap goes on with the full bounds from where it ended and from its start
         capped = [i for i, r in enumerate(results) if _on_cap(jobs[i], r[0])]
         full = {i: [fixed_step(g, params) for g in form_rigs[which[i]]] for i in capped}
@@ -379,8 +381,10 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
             for o in laws[1:]:
                 again.append(Job(prepared, form_bases[m, o], sigma, fast,
                                  _inside(prob.values(results[k][0]), fast), max_nfev))
-        which = which + [(m, o) for m in lines for o in laws[1:]]
-        return _finish(results + executor.map(solve, again), jobs + again, which, form_rigs,
+        # (the other laws' fits past the cap as the first ones: every form compared alike)
+        jobs2, which2, results2 = past_cap(again, [(m, o) for m in lines for o in laws[1:]],
+                                           executor.map(solve, again))
+        return _finish(results + results2, jobs + jobs2, which + which2, form_rigs,
                        stated, prepared, sigma, params, runs, max_nfev, extras, executor)
 
     executor = Executor(n_jobs)

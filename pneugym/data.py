@@ -694,8 +694,8 @@ def write_run(run: MeasuredRun, path: str | Path) -> Path:
                          ) from None
     from .outputs import atomic_write_text
 
-    # each file whole or not at all; the JSON last, so the pair is never a new CSV's with an
-    # old JSON
+    # each file whole (a temporary file renamed); the JSON last, so a new JSON never stands
+    # beside an old CSV (a crash between the two renames leaves the new CSV with the old JSON)
     atomic_write_text(_with_ext(stem, ".csv"), buf.getvalue())
     atomic_write_text(_with_ext(stem, ".json"), text)
     return stem

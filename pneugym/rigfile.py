@@ -374,7 +374,13 @@ def _from_params(doc: Mapping[str, Any], base: RigParams, where: str) -> RigPara
             _number(where, key, value)
             kw[key] = value
     rig = _make(where, lambda: base.with_(**kw), lambda group, name: _join(group, name))
-    for key, value in kw.items():  # then the measurement form's plausible ranges (unit slips)
+    _plausible(kw, where)  # then the measurement form's plausible ranges (unit slips)
+    return rig
+
+
+def _plausible(doc: Mapping[str, Any], where: str) -> None:
+    """Refuse a parameter-form value outside the measurement form's plausible range."""
+    for key, value in doc.items():
         items = [("", value)] if key not in GROUPS else \
             value.items() if isinstance(value, Mapping) else ()  # (a group object: checked)
         for name, v in items:
@@ -382,7 +388,6 @@ def _from_params(doc: Mapping[str, Any], base: RigParams, where: str) -> RigPara
             if spec is not None and _real(v) and not spec.ok(float(v)):
                 raise RigFileError(f"{where}: key {_join(key, name) if name else key!r} = "
                                    f"{v!r}: {spec.problem(float(v))}")
-    return rig
 
 
 def _names(cls: type) -> list[str]:
@@ -477,12 +482,14 @@ def _make(where: str, build: Callable[[], RigParams], key_name: Callable[[str, s
 def save(rig: RigParams, path: str | os.PathLike) -> Path:
     """Write ``rig`` to ``path`` (``.json``, ``.yaml`` or ``.yml``) as
     ``{"format": "pneugym-rig/1", **rig.to_dict()}``, atomically (a reader sees the old file or
-    the new one); :func:`load` gives back an equal rig. Refuses a folder or another extension."""
+    the new one); :func:`load` gives back an equal rig. Refuses a folder, another extension or
+    a rig :func:`load` would refuse (a value outside the plausible ranges)."""
     if not isinstance(rig, RigParams):
         raise TypeError(f"save needs a RigParams, got {type(rig).__name__}")
     p = _rig_path(path)
     check_output_file(p, "rig file")
     doc = {"format": FORMAT, **_plain(rig.to_dict())}
+    _plausible(doc, f"cannot save {p}")
     if p.suffix.lower() == ".json":
         text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     else:

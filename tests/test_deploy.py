@@ -278,6 +278,11 @@ def test_replay_refuses_a_run_recorded_from_later(measured):
         run.t, run.x, run.p_drive, run.p_exhaust, run.valve))
     with pytest.raises(ValueError, match="conventional: its first sample is 0.02 s after"):
         replay(Controller.load("gaslaw"), [run])
+    keep = run.t >= 0.0255  # first sample just past one period: the grid's first at two
+    run.t, run.x, run.p_drive, run.p_exhaust, run.valve = (a[keep] for a in (
+        run.t - 0.0209, run.x, run.p_drive, run.p_exhaust, run.valve))
+    with pytest.raises(ValueError, match="conventional: its first sample is 0.0051 s after"):
+        replay(Controller.load("gaslaw"), [run])
 
 
 def test_replay_gives_a_policy_the_commissioning_stroke_of_each_run(measured):
@@ -300,8 +305,7 @@ def test_replay_gives_a_policy_the_commissioning_stroke_of_each_run(measured):
     env = CutOffVectorEnv(num_envs=1, observe_rig=True, observe_commissioning=True)
     ctl = Controller(Reads(), env)
     run = read_run(measured / "conventional")
-    with pytest.raises(ValueError, match="conventional: the policy reads a commissioning "
-                                         "stroke.*--commissioning"):
+    with pytest.raises(ValueError, match="reads a commissioning stroke.*--commissioning RUN"):
         replay(ctl, [run])
     other = simulate_run(RigParams().with_(supply_pressure_gauge_pa=4e5), cut_on_arrival=True,
                          t_end=3.0, seed=1)
@@ -312,6 +316,10 @@ def test_replay_gives_a_policy_the_commissioning_stroke_of_each_run(measured):
     assert res["cut_time_s"] is None
     np.testing.assert_allclose(ctl.observation[-6:],
                                run_features(stroke, RigParams().cylinder.stroke_m), rtol=1e-6)
+    fresh = Controller(Reads(), env)  # a stroke set on the controller serves every run
+    fresh.set_commissioning(stroke)
+    replay(fresh, [run])
+    np.testing.assert_array_equal(fresh.observation, ctl.observation)
 
 
 def test_load_takes_a_gaslaw_calibration_file():

@@ -261,6 +261,13 @@ def test_a_file_over_1_mb_is_refused_before_it_is_read(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------------------
 # as_rig
 # ------------------------------------------------------------------------------------------
+def test_save_refuses_a_rig_load_would_refuse(tmp_path):
+    with pytest.raises(RigFileError, match=r"cannot save .*r.json: key 'valve.delay_s' = 3.0: "
+                                           r".*ms given as s\?"):
+        RigParams().with_(valve={"delay_s": 3.0}).save(tmp_path / "r.json")
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_as_rig_takes_a_rig_a_mapping_a_path_or_none(tmp_path):
     assert as_rig(ODD) is ODD
     assert as_rig(None) == RigParams() and as_rig(None, base=ODD) is ODD

@@ -90,7 +90,8 @@ def test_configs_and_refusals(tmp_path):
                                                 r"invalid"),
     ("esac", ["env.observe_commissioning=true"], r"--set env.observe_commissioning=true: env: "
                                                  r"observe_commissioning=True needs observe_rig"),
-    ("ppo", ["env.history=010"], r"--set 'env.history=010': the value '010' would be read as 8"),
+    ("ppo", ["env.history=010"], r"--set 'env.history=010': the value: 010 would be read as 8"),
+    ("ppo", ["policy_kwargs.net_arch=[64, 010]"], r"010 would be read as 8"),  # inside a list
     ("ppo", ["eval_every=0x100"], r"would be read as 256"),
     ("ppo", ["env.num_envs=16"], None),  # (seed 999,990 below: environments 10-15 would not be)
 ])

@@ -127,8 +127,9 @@ def load_config(algo: str, budget: str = "default", path: str | Path | None = No
     return cfg
 
 
-def _refuse_yaml11_ints(root: Any, path: Path) -> None:
-    """Refuse plain integers YAML 1.1 reads in another base (``010`` is 8) in a config file."""
+def _refuse_yaml11_ints(root: Any, path: Path | str) -> None:
+    """Refuse plain integers YAML 1.1 reads in another base (``010`` is 8) anywhere in a
+    config file or ``--set`` value (``path``: what the message names)."""
     import yaml
 
     from pneugym.rigfile import yaml11_int
@@ -143,9 +144,10 @@ def _refuse_yaml11_ints(root: Any, path: Path) -> None:
         elif isinstance(node, yaml.ScalarNode) and node.style is None:
             bad = yaml11_int(node.value)
             if bad is not None:
-                raise ConfigError(f"{path}: line {node.start_mark.line + 1}: {node.value} would "
-                                  f"be read as {bad} (YAML 1.1 reads a leading 0 as octal, 0x "
-                                  f"as hex, 1:30 as base 60): write it in decimal")
+                line = f" line {node.start_mark.line + 1}:" if isinstance(path, Path) else ""
+                raise ConfigError(f"{path}:{line} {node.value} would be read as {bad} (YAML 1.1 "
+                                  f"reads a leading 0 as octal, 0x as hex, 1:30 as base 60): "
+                                  f"write it in decimal")
 
 
 def _parse_value(text: str) -> Any:
@@ -153,12 +155,7 @@ def _parse_value(text: str) -> Any:
     YAML 1.1's integers in another base (``010`` read as 8, ``0x10``, ``1:30``) are refused."""
     import yaml
 
-    from pneugym.rigfile import yaml11_int
-
-    bad = yaml11_int(text.strip())
-    if bad is not None:
-        raise ConfigError(f"the value {text.strip()!r} would be read as {bad} (YAML 1.1 reads a "
-                          f"leading 0 as octal, 0x as hex, 1:30 as base 60): write it in decimal")
+    _refuse_yaml11_ints(yaml.compose(text), "the value")
     v = yaml.safe_load(text)
     if isinstance(v, str):
         try:

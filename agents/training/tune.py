@@ -131,7 +131,7 @@ def tune_hyperparameters(algo: str, out: str | Path, space_file: str | Path, tri
         (_, args), = dist.items()
         for v in args:
             load_config(algo, train_kw.get("budget", "default"), train_kw.get("config"),
-                        [*train_kw.get("overrides", ()), f"{key}={v}"],
+                        [*train_kw.get("overrides", ()), *_overrides({key: v})],
                         preset=train_kw.get("preset"), timesteps=train_kw.get("timesteps"),
                         seed=seed, rig=train_kw.get("rig"))
     train_kw = portable(algo, train_kw, [seed])  # Tune runs each trial in a folder of its own

@@ -77,15 +77,12 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None,
     cut is flagged (``after_recorded_cut``) and its outcome is unknown (``predicted`` None).
     ``commissioning``: measured commissioning strokes (extend, cut off on arrival, held); a
     policy that reads one gets the stroke at the run's operating point
-    (:func:`commissioning_for`)."""
+    (:func:`commissioning_for`), or, if none are given, the one the controller holds
+    (:meth:`Controller.set_commissioning`)."""
     p = controller.period_s
     if run.sample_dt_s > p * (1 + 1e-6):
         raise ValueError(f"{run.name}: sampled every {run.sample_dt_s * 1e3:.3g} ms, coarser than "
                          f"the controller's period ({p * 1e3:g} ms): it cannot be replayed")
-    if run.t[0] > p * (1 + controller.period_tolerance):
-        raise ValueError(f"{run.name}: its first sample is {run.t[0]:.4g} s after the extend "
-                         f"command; the controller decides from the first control period "
-                         f"({p * 1e3:g} ms) on, so a run recorded from later cannot be replayed")
     stated = run.rig(controller.rig)  # the run's own rig section over the controller's rig
     if stated.stroke_direction != "extend":
         raise ValueError(f"{run.name}: a {stated.stroke_direction} stroke; the controller runs "
@@ -94,11 +91,16 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None,
     load = float(run.meta.get("load_mass_kg", controller.rig.load_mass_kg))
     grid = np.arange(math.ceil(max(run.t[0], 0.0) / p - 1e-9), math.floor(run.t[-1] / p + 1e-9)
                      + 1) * p
+    if not grid.size or grid[0] > p * (1 + controller.period_tolerance):
+        raise ValueError(f"{run.name}: its first sample is {run.t[0]:.4g} s after the extend "
+                         f"command; the controller decides from the first control period "
+                         f"({p * 1e3:g} ms) on, so a run recorded from later cannot be replayed")
     cols = [np.interp(grid, run.t, getattr(run, c)) for c in ("x", "p_drive", "p_exhaust")]
     # (the set-point is gauge in the run; the controller takes it absolute over its ambient)
+    # (no strokes given: the one the controller holds, set_commissioning, if any)
     controller.reset(supply + controller.rig.gas.ambient_pressure_pa, load,
                      commissioning_for(run, commissioning, supply, load)
-                     if controller.reads_commissioning else None)
+                     if controller.reads_commissioning and commissioning else None)
     for k in range(grid.size):
         if controller.step(grid[k], cols[0][k], cols[1][k], cols[2][k]):
             break
@@ -150,6 +152,10 @@ def replay(controller: Controller, runs: Any, rig: Any = None,
 
     model = as_rig(rig, "rig") if rig is not None else None
     strokes = _measured(commissioning, controller.rig) if commissioning else []
+    if controller.reads_commissioning and not strokes and controller.commissioning is None:
+        raise ValueError(f"{controller.source} reads a commissioning stroke of the rig (extend, "
+                         f"cut off on arrival, held 1.5 s) at each run's operating point: give "
+                         f"them (--commissioning RUN ...)")
     return [replay_run(controller, r, model, strokes)
             for r in _measured(runs, controller.rig)]
 
