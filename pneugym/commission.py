@@ -384,8 +384,8 @@ def commission(runs: Sequence[MeasuredRun] | Sequence[str | Path], base: RigPara
         # (the other laws' fits past the cap as the first ones: every form compared alike)
         jobs2, which2, results2 = past_cap(again, [(m, o) for m in lines for o in laws[1:]],
                                            executor.map(solve, again))
-        return _finish(results + results2, jobs + jobs2, which + which2, form_rigs,
-                       stated, prepared, sigma, params, runs, max_nfev, extras, executor)
+        return _finish(results + results2, jobs + jobs2, which + which2, stated, prepared,
+                       sigma, runs, max_nfev, extras, executor)
 
     executor = Executor(n_jobs)
     try:
@@ -458,22 +458,17 @@ def _alternatives(results, jobs, which, best, prepared, sigma) -> tuple[list, li
     return rigs, misfits, deltas
 
 
-def _finish(results, jobs, which, form_rigs, stated, prepared, sigma, params, runs, max_nfev,
-            extras, executor) -> Commissioned:
-    """The best of the first fits, refitted with the full area bounds if on their cap, then
-    with :data:`EXTRA_PARAMS` if they are significant; the forms it cannot rule out beside it."""
+def _finish(results, jobs, which, stated, prepared, sigma, runs, max_nfev, extras,
+            executor) -> Commissioned:
+    """The best of the first fits (none on the area cap), then with :data:`EXTRA_PARAMS` if
+    they are significant; the forms it cannot rule out beside it."""
     best = int(np.argmin([r[1] for r in results]))
-    form, bases, fast = which[best], jobs[best].bases, jobs[best].params
+    form, bases, first = which[best], jobs[best].bases, jobs[best].params
     alternatives, alt_misfits, alt_deltas = _alternatives(results, jobs, which, best,
                                                           prepared, sigma)
-    rigs = form_rigs[form]
     stated = stated.with_(line={"model": form[0]}, valve={"flow_model": form[1]})
-    u, ssr, jac, _ = results[best]
-    prob = Problem(prepared, bases, sigma, fast)
-    if _on_cap(jobs[best], u):  # (an orifice law's refit) wider flow paths: the full bounds
-        bases = [fixed_step(g, params) for g in rigs]
-        u, ssr, jac, _ = solve(Job(prepared, bases, sigma, params, prob.values(u), max_nfev))
-        prob = Problem(prepared, bases, sigma, params)
+    u, ssr, jac, _ = results[best]  # (no fit ends on the area cap: past_cap went on with it)
+    prob = Problem(prepared, bases, sigma, first)
     used: list[str] = []
     if extras:
         big = prob.params + EXTRA_PARAMS
