@@ -7,13 +7,14 @@ Every figure comes from :class:`pneugym.plant.Plant`; nothing here re-implements
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .params import RigParams
 from .physics.energy import saving_ratio
-from .plant import Plant, Trajectory
+from .plant import Plant, Trajectory, check_duration
 
 #: A stroke longer than this [s] counts as stalled.
 T_MAX_S = 6.0
@@ -59,6 +60,12 @@ def simulate_stroke(params: RigParams, cutoff_s: float | str | None = None,
     stroke would begin: the filled driving side if never cut, else the trapped air once the
     valve has closed and the piston has arrived (or stalled).
     """
+    if not (cutoff_s is None or cutoff_s == "endstroke"):
+        if isinstance(cutoff_s, str):
+            raise ValueError(f"cutoff_s = {cutoff_s!r} is invalid: must be None, 'endstroke' or a "
+                             f"time [s]")
+        cutoff_s = check_duration(cutoff_s, "cutoff_s", allow_zero=True)
+    t_max = check_duration(t_max, "t_max")
     pl = plant if plant is not None and plant.params is params else Plant(params)
     pl.reset()
     if cutoff_s is None:
@@ -120,6 +127,10 @@ def cutoff_for_time_increase(params: RigParams, increase: float,
                              tol_s: float = 2e-4) -> StrokeResult:
     """The cut-off whose stroke time is ``(1 + increase)`` x the conventional one (bisection
     on the command time; later cut-offs give shorter strokes)."""
+    if isinstance(increase, bool) or not (isinstance(increase, numbers.Real)
+                                           and 0.0 <= increase <= 10.0):
+        raise ValueError(f"increase = {increase!r} is invalid: must be a stroke-time increase "
+                         f"in [0, 10] (a fraction: 0.1 = +10 %)")
     conv = conventional or simulate_stroke(params)
     if conv.stroke_time_s is None:
         raise ValueError("the conventional stroke does not complete; no cut-off can be placed")

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 from .params import RigParams
 from .physics import layout as L
-from .plant import Plant
+from .plant import Plant, check_duration
 from .units import compressor_energy_kwh, free_air_nl
 
 CHUNK_S = 0.005  # the stroke is advanced in steps of this length until it arrives [s]
@@ -84,7 +84,8 @@ def _stroke(plant: Plant, cut_s: float | None, dwell_s: float, t_max_s: float) -
     ``t_max_s``), then the dwell; the plant stays at the end of the dwell."""
     plant.command(1)
     if cut_s is not None:
-        plant.advance(cut_s, stop_on_arrival=False)
+        if cut_s > 0.0:  # (a cut at 0 s: the open command taken back at once)
+            plant.advance(cut_s, stop_on_arrival=False)
         plant.command(0)
     while plant.arrival_time_s is None and plant.time_s < t_max_s:
         plant.advance(CHUNK_S, stop_on_arrival=True)
@@ -118,6 +119,7 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
         _check(name, v)
     check_cycle_rig(rig)
     _check("dwell_s", dwell_s, allow_none=False)
+    t_max_s = check_duration(t_max_s, "t_max_s")
     pa = rig.gas.ambient_pressure_pa
     ext = Plant(rig.with_(stroke_direction="extend"))
     if start_pressures_pa is not None:
@@ -149,7 +151,7 @@ def run_cycle(rig: RigParams, cut_extend_s: float | None = None,
 def steady_cycle(rig: RigParams, cycles: int = 3, **kwargs) -> CycleResult:
     """The last of ``cycles`` cycles, each starting with the chamber pressures the previous one
     ended with (the first as :func:`run_cycle`): the cycle a machine repeats."""
-    if not isinstance(cycles, int) or cycles < 1:
+    if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
         raise ValueError(f"cycles = {cycles!r} must be an integer >= 1")
     start = kwargs.pop("start_pressures_pa", None)
     for _ in range(cycles):

@@ -100,7 +100,8 @@ def check_duration(value: object, what: str = "duration_s", allow_zero: bool = F
 
 
 def check_schedule(schedule: Iterable[tuple[float, int]]) -> list[tuple[float, float]]:
-    """Valve commands ``(time_s, value)``: times finite and >= 0, values 0 or 1; sorted."""
+    """Valve commands ``(time_s, value)``: times finite and >= 0, values 0 or 1; sorted by time
+    (commands at the same time keep their order: the last one holds)."""
     if isinstance(schedule, (str, bytes)) or not isinstance(schedule, Iterable):
         raise ValueError(f"schedule = {schedule!r} is invalid: must be a list of (time_s, "
                          f"command) pairs, e.g. [(0.0, 1), (0.8, 0)]")
@@ -113,7 +114,7 @@ def check_schedule(schedule: Iterable[tuple[float, int]]) -> list[tuple[float, f
                              f"(time_s, command)") from None
         t = check_duration(t, f"schedule[{k}] time", allow_zero=True)
         out.append((t, check_command(v, f"schedule[{k}] command")))
-    return sorted(out)
+    return sorted(out, key=lambda c: c[0])
 
 
 # ------------------------------------------------------------------------------------------

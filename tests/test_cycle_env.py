@@ -164,3 +164,20 @@ def test_a_retraction_that_cannot_complete_is_refused_at_reset():
     env = CutOffCycleEnv(rig=cylinder_rig(8, 300, load_kg=20.0, mounting_angle_deg=-90.0))
     with pytest.raises(ValueError, match="retract stroke"):
         env.reset(seed=0)
+
+
+def test_run_cycle_checks_its_time_limit_and_cuts_at_zero():
+    """A NaN limit is refused (it skipped both strokes); a cut at 0 s runs (it failed inside
+    the plant) and, the supply taken back at once, leaves the piston short of the end."""
+    with pytest.raises(ValueError, match="t_max_s"):
+        run_cycle(thesis_rig(2.5), t_max_s=float("nan"))
+    res = run_cycle(thesis_rig(2.5), cut_extend_s=0.0, t_max_s=2.0)
+    assert res.extend.arrival_time_s is None
+
+
+def test_the_cycle_env_refuses_a_commissioning_option_and_hints_its_own_step_limit():
+    env = CutOffCycleEnv(observe_rig=True, observe_commissioning=True)
+    with pytest.raises(ValueError, match="commissioning"):
+        env.reset(seed=0, options={"commissioning": [1.0] * 6})
+    with pytest.warns(UserWarning, match="max_episode_steps=2000"):
+        CutOffCycleEnv(time_limit_s=5.0)

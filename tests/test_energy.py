@@ -77,3 +77,21 @@ def test_saving_ratio_eq_5_10():
     assert saving_ratio(100.0, 100.0) == 0.0
     assert saving_ratio(100.0, 0.0) == 1.0
     assert saving_ratio(80.0, 100.0) < 0.0
+
+
+def test_a_conventional_episode_on_a_rebounding_rig_saves_nothing():
+    """A family rig whose stiff exhaust cushion pushes the piston back from the end: with the
+    supply kept, the wasted energy is the filled driving side at the full stroke (where the
+    supply brings the piston back), so a never-cut episode saves nothing and returns -1."""
+    from pneugym.envs.cutoff import CutOffEnv
+
+    env = CutOffEnv(preset="family")
+    env.reset(seed=105)
+    done, ret = False, 0.0
+    while not done:
+        _, r, term, trunc, info = env.step(0)
+        ret += r
+        done = term or trunc
+    assert info["position_m"] < env.rig.cylinder.stroke_m - 1e-3  # the rebound this test needs
+    assert info["saving_ratio"] == 0.0
+    assert ret == pytest.approx(-1.0 - env.weights["w_stick"] * info["stick_slip_events"], abs=1e-12)

@@ -545,3 +545,36 @@ def test_rig_is_params_a_dict_or_a_file_and_nothing_else():
     for bad in (3.0, ["a"], b"rig.json"):
         with pytest.raises(ValueError, match="rig"):
             CutOffEnv(rig=bad)
+
+
+def test_settings_changed_after_construction_are_checked_and_rescale_time():
+    """SB3's set_attr (or a user) may change the settings between episodes: a bad one is
+    refused at the next reset, and the time feature follows a new time limit."""
+    env = CutOffEnv()
+    env.reward_mode = "Dense"
+    with pytest.raises(ValueError, match="reward_mode"):
+        env.reset(seed=0)
+    env.reward_mode = "dense"
+    env.time_limit_s = 2.0
+    env.reset(seed=0)
+    for _ in range(100):
+        obs, *_ , info = env.step(0)
+    i = env.observation_names.index("time")
+    scale = next(f["scale"] for f in env.observation_layout()["features"] if f["name"] == "time")
+    assert scale == 2.0 and obs[i] == pytest.approx(info["time_s"] / 2.0, abs=1e-6)
+
+
+def test_a_reversible_cut_is_not_a_stall_and_a_long_valve_delay_is_refused():
+    """With reversible=True a cut that leaves the piston standing may be undone: the episode
+    goes on (it ended as a stall); more commands in flight than the valve queues are refused."""
+    env = CutOffEnv(reversible=True)
+    env.reset(seed=0)
+    for k in range(800):
+        _, _, term, trunc, info = env.step(1 if k < 60 else 0)  # cut for 0.3 s, then re-open
+        if term or trunc:
+            break
+    assert info["completed"] and not info["stalled"] and info["time_s"] > 0.3
+    env = CutOffEnv(reversible=True, control_period_s=0.001,
+                    conditions={"valve_delay_scale": (1.5, 1.5)})
+    with pytest.raises(ValueError, match="valve queues"):
+        env.reset(seed=0)

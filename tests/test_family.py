@@ -341,3 +341,31 @@ def test_a_cylinders_family_model_does_not_warn_inside_its_family():
     with warnings.catch_warnings():
         warnings.simplefilter("error", RigMismatchWarning)
         check_rig(Pol(), None, env)
+
+
+def test_a_real_error_in_a_family_draw_is_named_not_redrawn():
+    """Only a stroke that does not complete (or chatters) is redrawn; a rig the plant refuses
+    (bar given as Pa, a cushion longer than half a short stroke) is said as it is."""
+    from pneugym.presets import cylinder_rig
+
+    space = PRESETS["family"].with_(supply_pressure_gauge_pa=(1.5, 6.0))
+    with pytest.raises(ValueError, match="bar given as Pa"):
+        space.sample(np.random.default_rng(0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RigWarning)
+        with pytest.raises(ValueError, match="half the stroke"):
+            PRESETS["family"].sample(np.random.default_rng(0), cylinder_rig(32, 10.0))
+
+
+@pytest.mark.parametrize("kwargs, msg", [
+    ({"heat_transfer_time_constant_s": (0.3, 1e6)}, "heat_transfer_time_constant_s"),
+    ({"p_leak": True}, "p_leak"),
+    ({"max_conventional_time_s": True}, "max_conventional_time_s"),
+    ({"static_friction_n": (True, 600)}, "static_friction_n"),
+    ({"line_length_m": ("0.3", "5")}, "line_length_m"),
+])
+def test_a_family_refuses_bounds_no_rig_can_take_and_non_numbers(kwargs, msg):
+    """The extremes are checked with each effect on (a time constant of 1e6 s was accepted,
+    its draws silently redrawn); bools and strings are not numbers."""
+    with pytest.raises(ValueError, match=msg):
+        RigFamily(**kwargs)

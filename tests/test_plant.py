@@ -929,3 +929,20 @@ def test_reset_refuses_bad_initial_states(kw, pattern):
 def test_wrong_types_are_a_valueerror_not_a_typeerror(call, pattern):
     with pytest.raises(ValueError, match=pattern):
         call(Plant())
+
+
+def test_commands_at_the_same_time_keep_their_order_and_bad_cutoffs_are_refused():
+    """The last command given for one time holds (a cut at 0 s stalls, as 1 ms does); a negative
+    or NaN cut-off, or a NaN stroke-time increase, is refused by name."""
+    from pneugym.actuation import cutoff_for_time_increase, simulate_stroke
+    from pneugym.plant import check_schedule
+
+    assert check_schedule([(0.5, 1), (0.5, 0)]) == [(0.5, 1.0), (0.5, 0.0)]
+    assert check_schedule([(0.5, 0), (0.2, 1)]) == [(0.2, 1.0), (0.5, 0.0)]
+    rig = RigParams()
+    assert simulate_stroke(rig, 0.0).stalled
+    for bad in (-0.1, float("nan"), True, "soon"):
+        with pytest.raises(ValueError, match="cutoff_s"):
+            simulate_stroke(rig, bad)
+    with pytest.raises(ValueError, match="increase"):
+        cutoff_for_time_increase(rig, float("nan"))

@@ -418,8 +418,25 @@ def test_sb3_adapter_takes_per_environment_conditions():
     venv.reset()
     assert list(venv.unwrapped.conditions) == c
     venv.set_options([{"conditions": c[0]}, {"other": 1}])
-    with pytest.raises(ValueError, match="per-environment reset options"):
+    with pytest.raises(ValueError, match="unknown reset option 'other'"):
         venv.reset()
+    # SB3's set_options(dict) gives every sub-environment the same conditions
+    venv.set_options({"conditions": c[1]})
+    venv.reset()
+    assert list(venv.unwrapped.conditions) == [c[1], c[1]]
+
+
+def test_vector_reset_without_a_seed_goes_on_with_the_seeded_streams():
+    """reset(seed=s) then reset(): the second episodes' conditions repeat from run to run (as a
+    gymnasium env's do), not drawn from the OS."""
+    def second():
+        v = CutOffVectorEnv(num_envs=2, preset="randomized")
+        _, first = v.reset(seed=0)
+        _, info = v.reset()
+        return first["conditions"]["load_mass_kg"], info["conditions"]["load_mass_kg"]
+
+    (a1, a2), (b1, b2) = second(), second()
+    assert np.array_equal(a1, b1) and np.array_equal(a2, b2) and not np.array_equal(a1, a2)
 
 
 def test_settings_changed_between_episodes_apply_to_the_next_one():
@@ -436,3 +453,19 @@ def test_settings_changed_between_episodes_apply_to_the_next_one():
 
     assert env.E[0, EP.E_W_TIME] == 2 * row[EP.E_W_TIME] and env.E[0, EP.E_T_LIMIT] == 3.0
     assert env.E[0, EP.E_T_CONV] == row[EP.E_T_CONV]  # the cached conventional stroke stays
+
+
+def test_an_idle_sub_environment_keeps_its_last_observation():
+    """autoreset=False: an ended sub-environment is not stepped; its observation stays (its
+    history did shift, with fresh noise)."""
+    env = CutOffVectorEnv(num_envs=2, autoreset=False, history=2,
+                          conditions={"pressure_noise_pa": 400.0, "position_noise_m": 3e-5})
+    env.reset(seed=0)
+    done = np.zeros(2, dtype=bool)
+    while not done[0]:
+        obs, _, term, trunc, _ = env.step(np.array([1, 0]))
+        done = term | trunc
+    last = obs[0].copy()
+    for _ in range(5):
+        obs, *_ = env.step(np.array([1, 0]))
+    assert np.array_equal(obs[0], last)

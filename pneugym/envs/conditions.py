@@ -17,7 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..params import RigParams, _check, _finite, _nonneg, _positive, did_you_mean
-from .family import RigFamily, apply_changes, check_changes, checked_substep
+from .family import RigFamily, StrokeRefused, apply_changes, check_changes, checked_substep
 
 
 @dataclass(frozen=True)
@@ -174,9 +174,14 @@ class ConditionSpace:
             changes = self.family.sample(rng, base)
             cond = dataclasses.replace(cond, rig_changes=changes)
             try:
-                dt = checked_substep(cond.rig(base), cond.dip, self.family.max_conventional_time_s,
+                rig = cond.rig(base)
+            except ValueError as exc:  # a real error: the base or the ranges, not this draw
+                raise ValueError(f"the rig family draws a rig the plant refuses on this base: {exc}"
+                                 ) from exc
+            try:
+                dt = checked_substep(rig, cond.dip, self.family.max_conventional_time_s,
                                      self.family.max_conventional_sticks)
-            except ValueError:
+            except StrokeRefused:
                 continue
             if dt is not None:  # the plant needed a smaller substep: every episode takes it
                 cond = dataclasses.replace(cond, rig_changes=changes + (("solver.dt_s", dt),))
@@ -306,6 +311,10 @@ def resolve(preset: str | ConditionSpace | Conditions | None,
         space = PRESETS[preset]
     else:
         raise ValueError(f"preset must be a name, a ConditionSpace or Conditions; got {preset!r}")
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise ValueError(f"conditions = {overrides!r:.80} must be a dict of ConditionSpace fields "
+                         f"(e.g. {{'load_mass_kg': (5, 30)}}); a named set of conditions is a "
+                         f"preset (preset={overrides!r:.40})")
     return space.with_(**dict(overrides)) if overrides else space
 
 

@@ -279,6 +279,25 @@ def conventional_figures(params: RigParams, dip: tuple[float, float, float] = (0
     return plant.arrival_time_s, plant.conventional_energy_j
 
 
+def _check_settings(values: Mapping[str, Any], reward_mode: Any) -> None:
+    """The environment's numeric settings (periods and limits [s], reward weights) and its
+    reward mode, each refused by name when invalid."""
+    for name, val in values.items():
+        if name not in ("control_period_s", "time_limit_s", "decision_window_s", "w_time",
+                        "w_stall", "w_stick", "sensor_lag_s"):
+            raise ValueError(f"unknown setting {name!r} (weights: w_time, w_stall, w_stick)")
+        ok = isinstance(val, numbers.Real) and not isinstance(val, (bool, np.bool_)) \
+            and math.isfinite(val)
+        if not ok or val < 0 or (val == 0 and name in ("control_period_s", "time_limit_s")):
+            raise ValueError(f"{name} = {val!r} is invalid (a finite number >= 0; > 0 for "
+                             f"control_period_s and time_limit_s)")
+        if val > _MAX_OPTION.get(name, math.inf):
+            hi, hint = _MAX_OPTION_HINT[name]
+            raise ValueError(f"{name} = {val!r} is not plausible (at most {hi:g} s): {hint}")
+    if reward_mode not in ("dense", "sparse"):
+        raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
+
+
 class _CutOffCore:
     """The state and logic shared by :class:`CutOffEnv` (one episode) and
     :class:`CutOffVectorEnv` (a batch): packed plants ``Y, P, D``, episode arrays ``E``."""
@@ -288,18 +307,10 @@ class _CutOffCore:
                    observe_commissioning,
                    sensor_lag_s,
                    w_time, w_stall, w_stick, reward_mode) -> None:
-        values = {"control_period_s": control_period_s, "time_limit_s": time_limit_s,
-                  "decision_window_s": decision_window_s, "w_time": w_time, "w_stall": w_stall,
-                  "w_stick": w_stick, "sensor_lag_s": sensor_lag_s}
-        for name, val in values.items():
-            ok = isinstance(val, numbers.Real) and not isinstance(val, (bool, np.bool_)) \
-                and math.isfinite(val)
-            if not ok or val < 0 or (val == 0 and name in ("control_period_s", "time_limit_s")):
-                raise ValueError(f"{name} = {val!r} is invalid (a finite number >= 0; > 0 for "
-                                 f"control_period_s and time_limit_s)")
-            if val > _MAX_OPTION.get(name, math.inf):
-                hi, hint = _MAX_OPTION_HINT[name]
-                raise ValueError(f"{name} = {val!r} is not plausible (at most {hi:g} s): {hint}")
+        _check_settings({"control_period_s": control_period_s, "time_limit_s": time_limit_s,
+                         "decision_window_s": decision_window_s, "w_time": w_time,
+                         "w_stall": w_stall, "w_stick": w_stick, "sensor_lag_s": sensor_lag_s},
+                        reward_mode)
         if not (isinstance(history, (int, np.integer)) and not isinstance(history, bool)
                 and 1 <= history <= MAX_HISTORY):
             raise ValueError(f"history = {history!r} must be an integer in [1, {MAX_HISTORY}]")
@@ -307,8 +318,6 @@ class _CutOffCore:
                           ("observe_rig", observe_rig),
                           ("observe_commissioning", observe_commissioning)):
             check_flag(name, val)
-        if reward_mode not in ("dense", "sparse"):
-            raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
         from ..rigfile import as_rig
 
         base = as_rig(rig, "rig")
@@ -403,6 +412,12 @@ class _CutOffCore:
                 self._starts.clear()
             self._starts[key] = start
         P, y0, d0, e0, datasheet = start
+        if self.reversible and P[L.P_DELAY] / self.control_period_s + 2 > L.QCAP:
+            raise ValueError(
+                f"reversible=True with a {P[L.P_DELAY] * 1e3:.0f} ms valve delay and a "
+                f"{self.control_period_s * 1e3:g} ms control period: more valve commands in "
+                f"flight than the valve queues ({L.QCAP}); choose a longer control_period_s or "
+                f"a latched cut-off (reversible=False)")
         self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
         self._settings(self.E[i])  # public attributes a user (or SB3's set_attr) may change
         self.conditions[i] = cond
@@ -446,7 +461,14 @@ class _CutOffCore:
         return P, y0, d0, e, datasheet
 
     def _settings(self, e: np.ndarray) -> None:
-        """The environment's settings into an episode's bookkeeping row ``e``."""
+        """The environment's settings into an episode's bookkeeping row ``e``, checked again:
+        they are public attributes a user (or SB3's ``set_attr``) may change between episodes."""
+        _check_settings({"control_period_s": self.control_period_s,
+                         "time_limit_s": self.time_limit_s,
+                         "decision_window_s": self.decision_window_s, **self.weights},
+                        self.reward_mode)
+        check_flag("reversible", self.reversible)
+        self._scales[3] = self.time_limit_s  # the time feature's scale follows the limit
         e[EP.E_REV] = float(self.reversible)
         e[EP.E_T_LIMIT] = self.time_limit_s
         e[EP.E_WINDOW] = self.decision_window_s
@@ -683,7 +705,8 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
         unknown = set(config) - set(_DEFAULTS)
         if unknown:
             raise ValueError(f"unknown CutOffVectorEnv option(s) {sorted(unknown)}")
-        if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
+        if not (isinstance(num_envs, (int, np.integer)) and not isinstance(num_envs, bool)
+                and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
         self.config = {**_DEFAULTS, **config}
         if max_episode_steps is not None and not (
@@ -730,7 +753,10 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
                                  f"stroke (or None) per environment ({n}); got {told!r:.200}")
             if not self.observe_commissioning:
                 check_commissioning(None, False, 0.0)
-        self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        # a sub-environment reset without a seed goes on with its stream (as a gymnasium env
+        # does); a fresh stream from the OS only before its first seed
+        self._rngs = [seeding.np_random(s)[0] if s is not None or not self._rngs else self._rngs[i]
+                      for i, s in enumerate(seeds)]
         for i in range(n):
             c = conds[i] if conds is not None else None
             self._start(i, c if c is not None else self.space.sample(self._rngs[i], self.rig))

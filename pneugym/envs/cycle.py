@@ -30,6 +30,7 @@ dip from their own command.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, Mapping
 
 import gymnasium as gym
@@ -75,8 +76,17 @@ class CutOffCycleEnv(gym.Env):
         rig = as_rig(config.get("rig"), "rig")
         check_cycle_rig(rig)
         cfg = {**config, "rig": rig}
-        self.strokes = (CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="extend")}),
-                        CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="retract")}))
+        with warnings.catch_warnings():  # a stroke's step-limit hint is not the cycle's (below)
+            warnings.simplefilter("ignore", UserWarning)
+            self.strokes = (CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="extend")}),
+                            CutOffEnv(**{**cfg, "rig": rig.with_(stroke_direction="retract")}))
+        ext = self.strokes[0]
+        steps = 2 * math.ceil(ext.time_limit_s / ext.control_period_s - 1e-9)
+        if steps > CYCLE_MAX_STEPS:
+            gym.logger.warn(
+                f"two strokes of time_limit_s / control_period_s = {steps} steps, more than the "
+                f"{CYCLE_MAX_STEPS} of the registered TimeLimit: with gymnasium.make, pass "
+                f"max_episode_steps={steps} too, or cycles end early")
         self.config = {**self.strokes[0].config, "dwell_s": self.dwell_s, "rig": rig}
         self.rig = rig
         n = self.strokes[0].observation_space.shape[0] + 1
@@ -95,6 +105,11 @@ class CutOffCycleEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
         super().reset(seed=seed)
         ext = self.strokes[0]
+        if "commissioning" in check_options(options):
+            raise ValueError("options['commissioning']: the cycle environment simulates each "
+                             "stroke's commissioning stroke from the conditions (observe_"
+                             "commissioning); a measured one is told to CutOff-v0, one stroke "
+                             "at a time")
         cond = check_options(options).get("conditions")
         if cond is None:
             cond = ext.space.sample(self.np_random, ext.rig)

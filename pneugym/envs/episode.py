@@ -93,8 +93,8 @@ def step_one(y, P, d, e, action, w):
             done = 1.0
         elif not cut and t - d[D_T_ARRIVE] >= e[E_WINDOW] - 1e-9:
             done = 1.0
-    elif cut and closed and (d[D_MODE] == MODE_STUCK or d[D_MODE] == MODE_START) \
-            and max_drive_force(y, P) <= P[P_FS]:
+    elif cut and closed and e[E_REV] < 0.5 and (d[D_MODE] == MODE_STUCK or d[D_MODE] == MODE_START) \
+            and max_drive_force(y, P) <= P[P_FS]:  # (a reversible cut may be undone: no stall)
         done = 1.0
         e[E_STALLED] = 1.0
     if done == 0.0 and t >= e[E_T_LIMIT] - 1e-9:
@@ -238,7 +238,8 @@ def step_observe(Y, Ps, Ds, Es, actions, rewards, status, W, noise, x_prev, scal
     ``prange``): keep its state in ``Yb``, ``Db``, ``Eb`` (for a retry), :func:`step_one`, count
     the step in ``steps``; then, if the step stayed physical (``status`` 0), :func:`observe`
     it (not fresh), end it as truncated at ``max_steps`` steps (0: no limit; the reward gains
-    :func:`truncate`'s) and write its :func:`info_row`. Fills ``terminated`` and ``truncated``
+    :func:`truncate`'s) and write its :func:`info_row`; an ``idle`` row (ended, not reset) is
+    neither observed nor read out again. Fills ``terminated`` and ``truncated``
     from ``E_DONE`` and returns how many episodes not ``idle`` ended (a row that failed is the
     caller's to redo, and its flags with it)."""
     n_ended = 0
@@ -248,7 +249,7 @@ def step_observe(Y, Ps, Ds, Es, actions, rewards, status, W, noise, x_prev, scal
         Eb[i, :] = Es[i, :]
         rewards[i], status[i] = step_one(Y[i], Ps[i], Ds[i], Es[i], actions[i], W[i])
         steps[i] += 1
-        if status[i] == STATUS_OK:
+        if status[i] == STATUS_OK and not idle[i]:  # (an idle row keeps its last observation)
             observe_row(i, Y, Ps, Ds, Es, noise, x_prev, scales, False, hist, extra, bound, obs)
             if max_steps > 0 and steps[i] >= max_steps and Es[i, E_DONE] == 0.0:
                 rewards[i] += truncate(Y[i], Ps[i], Ds[i], Es[i])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
@@ -62,12 +63,17 @@ def apply_changes(base: RigParams, changes: tuple[Change, ...]) -> RigParams:
     return base.with_(**groups)
 
 
+class StrokeRefused(ValueError):
+    """A drawn rig whose conventional stroke does not complete in time, or chatters into the
+    end (:func:`checked_substep`): the draw is redrawn; any other ``ValueError`` is a real one."""
+
+
 def checked_substep(rig: RigParams, dip: tuple[float, float, float], t_max_s: float,
                     max_sticks: int | None = None) -> float | None:
     """Simulate ``rig``'s conventional stroke (with the supply ``dip``): ``None`` if it ran at the
     automatic substep, else the smaller substep [s] the plant fell back to (a rig where the
     automatic bound is too loose for the valve opening onto the empty line: some long, thin FD
-    lines fed by a valve wider than the tube). Raises ``ValueError`` if the piston does not
+    lines fed by a valve wider than the tube). Raises :class:`StrokeRefused` if the piston does not
     arrive within ``t_max_s``, or if its conventional stroke sticks and slips more than
     ``max_sticks`` times (a cushion set so that the piston chatters into the end)."""
     import warnings
@@ -81,13 +87,13 @@ def checked_substep(rig: RigParams, dip: tuple[float, float, float], t_max_s: fl
         warnings.simplefilter("ignore", RigWarning)
         plant.advance(t_max_s, command=1, stop_on_arrival=True)
     if plant.arrival_time_s is None:
-        raise ValueError(f"the conventional stroke does not complete within {t_max_s} s")
+        raise StrokeRefused(f"the conventional stroke does not complete within {t_max_s} s")
     if max_sticks is not None:
         from .episode import stick_slips
 
         n = int(stick_slips(plant.d))
         if n > max_sticks:
-            raise ValueError(f"the conventional stroke sticks and slips {n} times")
+            raise StrokeRefused(f"the conventional stroke sticks and slips {n} times")
     return None if plant.dt_s == dt0 else float(plant.dt_s)
 
 
@@ -114,9 +120,14 @@ def check_changes(changes: Any, what: str = "rig_changes") -> tuple[Change, ...]
     return tuple(sorted(out.items()))
 
 
+def _real(v: Any) -> bool:
+    """A real number, not a bool (nor a string that float() would read)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
 def _range(name: str, v: Any, lo_ok: float = 0.0) -> Range:
-    if not (isinstance(v, (tuple, list)) and len(v) == 2):
-        raise ValueError(f"RigFamily.{name} = {v!r} must be a (low, high) pair")
+    if not (isinstance(v, (tuple, list)) and len(v) == 2 and all(map(_real, v))):
+        raise ValueError(f"RigFamily.{name} = {v!r} must be a (low, high) pair of numbers")
     lo, hi = (float(x) for x in v)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo_ok <= lo <= hi):
         raise ValueError(f"RigFamily.{name} = {v!r}: need finite {lo_ok:g} <= low <= high")
@@ -176,7 +187,7 @@ class RigFamily:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name.startswith("p_"):
-                if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+                if not (_real(v) and 0.0 <= v <= 1.0):
                     raise ValueError(f"RigFamily.{f.name} = {v!r} must be a probability in [0, 1]")
             elif f.name == "max_conventional_sticks":
                 if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
@@ -188,15 +199,20 @@ class RigFamily:
                     raise ValueError(f"RigFamily.{f.name} = {v!r} must lie in [-90, 90] degrees")
                 object.__setattr__(self, f.name, (lo - 90.0, hi - 90.0))
             elif f.name == "max_conventional_time_s":
-                if not (isinstance(v, (int, float)) and 0.0 < v <= 3600.0):
+                if not (_real(v) and 0.0 < v <= 3600.0):
                     raise ValueError(f"RigFamily.{f.name} = {v!r} must be in (0, 3600] s")
             else:
                 object.__setattr__(self, f.name, _range(f.name, v, 1e-12 if f.name in self._LOG
                                                         else 0.0))
-        # the extremes must make valid rigs
-        for pick in (0, 1):
-            u = np.full(self._n_draws, float(pick))
-            apply_changes(RigParams(), self._changes(u, RigParams()))
+        # the extremes must make valid rigs, with each drawn form and effect on and off (a
+        # probability's uniform at 0 turns it on where it can be on)
+        chance = [i for i, k in enumerate((_DRAWS + _CYLINDER_DRAWS)[:self._n_draws])
+                  if k.startswith("p_")]
+        for pick in (0.0, 1.0):
+            for on in (False, True):
+                u = np.full(self._n_draws, pick)
+                u[chance] = 0.0 if on else 1.0
+                apply_changes(RigParams(), self._changes(u, RigParams()))
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -322,4 +338,4 @@ _DRAWS = ("v0", "port", "cl", "cfd", "cfe", "ramp", "len", "dia", "p_lumped", "v
 #: the uniforms of the cylinder's design and mounting, drawn after those (only when on)
 _CYLINDER_DRAWS = ("p_single", "angle", "p_incl")
 
-__all__ = ["RigFamily", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]
+__all__ = ["RigFamily", "StrokeRefused", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]

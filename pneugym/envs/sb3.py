@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
-from .cutoff import CutOffVectorEnv, _seed_ok
+from .cutoff import RESET_OPTIONS, CutOffVectorEnv, _seed_ok, check_options
 
 
 class CutOffVecEnv(VecEnv):
@@ -46,15 +46,14 @@ class CutOffVecEnv(VecEnv):
         return obs
 
     def _batched_options(self) -> dict[str, Any] | None:
-        """SB3's per-environment options as the batched env's: the same dict for all, or one
-        ``{"conditions": c_i}`` per environment, gathered into ``{"conditions": [c_0, ...]}``."""
+        """SB3's per-environment options as the batched env's: each reset option (both are per
+        environment: ``conditions``, ``commissioning``) gathered into one list, ``None`` for an
+        environment not given it (the same option for all, as ``set_options(dict)`` gives it,
+        becomes that value for each)."""
         opts = [o or {} for o in self._options]
-        if all(o == opts[0] for o in opts):
-            return opts[0] or None
-        if all(set(o) <= {"conditions"} for o in opts):
-            return {"conditions": [o.get("conditions") for o in opts]}
-        raise ValueError("per-environment reset options other than 'conditions' differ between "
-                         "sub-environments; the batched env takes one set of options for all")
+        keys = [k for k in RESET_OPTIONS if any(k in o for o in opts)]
+        check_options({k: None for o in opts for k in o})  # an unknown key named
+        return {k: [o.get(k) for o in opts] for k in keys} or None
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)

@@ -9,7 +9,7 @@ import math
 from numba import njit
 
 from .cylinder import chamber_pressures
-from .layout import D_CMD, NP, P_AP, P_FLOAD, P_NCELLS, P_PA, P_PS, P_R, P_STROKE, P_T, P_V0D, Y_MD, Y_ME, Y_X
+from .layout import D_CMD, D_T_ARRIVE, NP, P_AP, P_FLOAD, P_NCELLS, P_PA, P_PS, P_R, P_STROKE, P_T, P_V0D, Y_MD, Y_ME, Y_X
 from .valve import valve_closed
 
 
@@ -65,10 +65,12 @@ def filled_energy(P, x):
 @njit(cache=True, error_model="numpy")
 def energy_wasted(y, P, d):
     """Energy [J] wasted if the return stroke began now (thesis 5.5-5.7): the driving side filled
-    to supply pressure while the supply is (or will be) connected, else the trapped air."""
+    to supply pressure while the supply is (or will be) connected, else the trapped air. Filled
+    at the piston's position, or at the full stroke once it has arrived: the supply pushes a
+    piston that rebounds from a stiff cushion back to the end."""
     b = 2 * int(P[P_NCELLS]) - 1
     if d[D_CMD] > 0.5 or not valve_closed(d, P):
-        return filled_energy(P, y[b + Y_X])
+        return filled_energy(P, P[P_STROKE] if d[D_T_ARRIVE] >= 0.0 else y[b + Y_X])
     return driving_side_energy(y, P)
 
 

@@ -94,7 +94,7 @@ D_T_CLOSED = 10  # time the valve last became fully closed after being open [s] 
 D_STATUS = 11    # 0 ok, 1 non-finite state, 2 non-positive pressure/mass
 D_NQ = 12        # number of queued valve commands
 D_Q0 = 13        # queue: pairs (effective time [s], target), oldest first
-QCAP = 32        # queue capacity (pairs)
+QCAP = 64        # queue capacity (pairs): a change every 5 ms through a 0.3 s valve fits
 ND = D_Q0 + 2 * QCAP
 NEVER = 1e30
 
