@@ -36,6 +36,10 @@ class Policy:
     #: the conditions a trained policy was trained on (a ``ConditionSpace``, set when it is
     #: loaded, :func:`agents.registry.load_policy`); None: untrained, or not recorded
     training_space: Any = None
+    #: whether :meth:`act` needs :meth:`begin_episodes` first (it plans or calibrates on each
+    #: episode's conditions: the oracle, the per-rig Gas-Law rule)
+    needs_conditions = False
+    _told = False
 
     def __init__(self, layout: Mapping[str, Any]):
         self.read = ObservationReader(layout)
@@ -50,13 +54,26 @@ class Policy:
         raise NotImplementedError
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:
-        """Told the conditions of the episodes about to start (one per observation row).
-        Only privileged policies (the oracle) use it; the others ignore it."""
+        """Told the conditions of the episodes about to start (one per observation row). The
+        oracle and the per-rig Gas-Law rule need them (:attr:`needs_conditions`: they refuse to
+        act before); rules that read a rig's datasheet values take them from each condition's
+        ``rig_changes``; the others ignore them."""
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """Actions (0 keep the supply, 1 cut off) for one observation or a batch, as in SB3."""
         o = np.asarray(obs)
+        if o.ndim not in (1, 2) or o.shape[-1] != self.read.size:
+            raise ValueError(f"{self.name}: an observation of shape {o.shape}; this policy reads "
+                             f"{self.read.size} values each (one observation, or a batch of "
+                             f"them): was it built for another environment's layout?")
+        if not np.isfinite(o).all():
+            raise ValueError(f"{self.name}: the observation holds NaN or infinity "
+                             f"(a sensor or the environment failed)")
+        if self.needs_conditions and not self._told:
+            raise RuntimeError(f"{self.name} plans on each episode's conditions: call "
+                               f"begin_episodes(conditions) after each reset (evaluate.py and "
+                               f"run_first_episodes do)")
         single = o.ndim == 1
         o = o.reshape(-1, self.read.size)
         a = np.asarray(self.act(o), dtype=np.int64).reshape(o.shape[0])

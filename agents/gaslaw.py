@@ -61,7 +61,20 @@ def read_calibration(path: Path | str = CALIBRATION_FILE) -> dict[str, Any]:
         from pneugym.rigfile import as_rig
 
         as_rig(data["rig"], f"{p}: its rig")
+    rule = data.get("policy") or {}
+    if not (isinstance(rule, dict) and set(rule) <= set(RULE_OPTIONS)):
+        raise ValueError(f"{p}: its 'policy' = {rule!r:.120} must hold only the rule's options "
+                         f"{list(RULE_OPTIONS)} (the formula K was calibrated for)")
     return data
+
+
+#: the rule's options a calibration records (``policy``): K holds for that formula only
+RULE_OPTIONS = ("n", "pressure", "volume")
+
+
+def rule_options(calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """The rule's options a calibration was made for (its ``policy``; the defaults if none)."""
+    return dict(calibration.get("policy") or {})
 
 
 def k_table(calibration: Mapping[str, Any]) -> dict[float, float]:
@@ -170,6 +183,7 @@ class GasLawPerRigPolicy(GasLawPolicy):
 
     name = "gaslaw-rig"
     SUPPLIES_BAR = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0)  # as the shipped table (held beyond)
+    needs_conditions = True
 
     def __init__(self, layout: Mapping[str, Any], env_config: Mapping[str, Any] | None = None,
                  rig: RigParams | None = None, seed: int = 0, **kwargs: Any):
@@ -202,6 +216,7 @@ class GasLawPerRigPolicy(GasLawPolicy):
             t = self.table(getattr(c, "rig_changes", ()))
             ks.append(np.interp(c.supply_bar_gauge, list(t), list(t.values())))
         self._k_bar, self.k = None, np.array(ks)
+        self._told = True
 
 
 def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] | None = None,

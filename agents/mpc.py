@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any, Callable, Collection, Mapping
+from typing import Any, Callable, Collection, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -53,6 +53,8 @@ _LOG = np.array([f[3] for f in FITTED])
 #: trace residual scales: position [m], port pressures [Pa]
 TRACE_SCALES = np.array([3e-3, 2e4, 2e4])
 DATASHEET = ("line_length", "line_diameter", "dead_volume", "payload")
+#: the rig-file values of a cylinder the observation does not hold (from ``rig_changes``)
+CYLINDER_FIELDS = ("cylinder.design", "cylinder.mounting_angle_deg")
 
 
 def to_unit(theta: np.ndarray) -> np.ndarray:
@@ -130,6 +132,14 @@ class ModelPredictivePolicy(TimedCutPolicy):
         self.members = hidden_members(prior or RigFamily(), prior_members, self.base, seed)
         self.fit_evals, self.refit_evals = fit_evals, refit_evals
         self._rows = 0
+        self._cylinder: list[dict[str, Any]] = []  # each row's cylinder, as its rig file states
+
+    def begin_episodes(self, conditions: Sequence[Any]) -> None:
+        """Episodes on cylinders of their own (``rig_changes``, e.g. the cylinders suite): the
+        plan takes each one's design and mounting angle, as its rig file states them (the
+        other datasheet values it reads from the observation)."""
+        self._cylinder = [{k: v for k, v in getattr(c, "rig_changes", ()) if k in CYLINDER_FIELDS}
+                          for c in conditions]
 
     @classmethod
     def for_env(cls, env, **kwargs: Any) -> "ModelPredictivePolicy":
@@ -173,8 +183,14 @@ class ModelPredictivePolicy(TimedCutPolicy):
         """Noise-free conditions of row ``i`` under fitted quantities ``theta``."""
         row = obs[i:i + 1]
         length, dia, vol, load = (float(self.read(row, k)[0]) for k in DATASHEET)
+        # the observed dead volume is the driving side's in all (the chamber's and an extra
+        # volume at the port the rig file states, which the base rig adds again)
+        chamber = "cylinder.dead_volume_m3" if self.base.stroke_direction == "extend" else \
+            "cylinder.dead_volume_rod_m3"
+        extra = self.base.effects.dead_volume_m3
         changes = {"line.length_m": round(length, 6), "line.diameter_m": round(dia, 7),
-                   "cylinder.dead_volume_m3": float(f"{vol:.5g}"),
+                   chamber: float(f"{max(vol - extra, 1e-9):.5g}"),
+                   **(self._cylinder[i] if i < len(self._cylinder) else {}),
                    **rig_changes(theta, self.base)}
         return Conditions(supply_pressure_gauge_pa=round(float(self.read(row,
                           "supply_setpoint")[0]), 0), load_mass_kg=round(load, 4),

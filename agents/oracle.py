@@ -183,5 +183,8 @@ class OraclePolicy(TimedCutPolicy):
                                 for n in names)  # (None, e.g. a stalled stroke's time: nan)
         return out
 
+    needs_conditions = True
+
     def begin_episodes(self, conditions: Sequence[Any]) -> None:
         self.t_cut_s = np.array([t for t, _ in self.plan_many(conditions)])
+        self._told = True

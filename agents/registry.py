@@ -11,6 +11,7 @@ from .learned import LayoutMismatchError, SB3Policy, read_run, run_member
 from .mpc import ModelPredictivePolicy
 from .mpc_rig import RigModelPolicy
 from .oracle import OraclePolicy
+from pneugym.params import RigParams
 
 BASELINES: dict[str, type[Policy]] = {
     "conventional": ConventionalPolicy, "endstroke": EndStrokePolicy, "gaslaw": GasLawPolicy,
@@ -103,9 +104,7 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
     trained = trained_rig(policy, run)
     policy.trained_rig = trained
     here = env.unwrapped.rig
-    point = {"supply_pressure_gauge_pa": here.supply_pressure_gauge_pa,
-             "load_mass_kg": here.load_mass_kg,
-             "effects": {"sensor_lag_s": here.effects.sensor_lag_s}}
+    point = _operating_point(here)
     preset = trained_preset(policy, run)
     family = PRESETS[preset].family if preset in PRESETS else None
     outside: list[str] = []
@@ -120,6 +119,28 @@ def check_rig(policy: Policy, run: dict | None, env) -> None:
                       f"{'the rig family' if family else 'another rig'}; this environment's rig "
                       f"lies outside it: {what} (retrain it for this rig: pneugym train --rig "
                       f"FILE)", RigMismatchWarning, stacklevel=3)
+
+
+def _operating_point(rig: RigParams) -> dict[str, Any]:
+    """The fields of ``rig`` that are not part of its identity (the conditions set them)."""
+    return {"supply_pressure_gauge_pa": rig.supply_pressure_gauge_pa,
+            "load_mass_kg": rig.load_mass_kg, "effects": {"sensor_lag_s": rig.effects.sensor_lag_s}}
+
+
+def _check_commissioned_rig(policy: Policy, env) -> None:
+    """Warn (:class:`RigMismatchWarning`) when a commissioned model's rig file is not the
+    environment's rig: ``mpc-rig`` plans on the model's rig whatever rig it runs on."""
+    import warnings
+
+    from pneugym.rigfile import describe_difference
+
+    here = env.unwrapped.rig
+    diff = describe_difference(policy.model.stated.with_(**_operating_point(here)), here,
+                               largest_first=True)
+    if diff:
+        warnings.warn(f"{policy.source} was commissioned on another rig; this environment's rig "
+                      f"differs: {diff} (commission it on this rig: pneugym commission RUNS "
+                      f"--rig FILE)", RigMismatchWarning, stacklevel=3)
 
 
 def trained_preset(policy: Policy, run: dict | None) -> str | None:
@@ -196,17 +217,19 @@ def load_policy(path: str | Path, env, **kwargs: Any) -> Policy:
         if kwargs:  # a commissioned rig model (pneugym commission): mpc-rig plans on it
             raise ValueError(f"{p} is a commissioned rig model: it takes no overrides, got "
                              f"{sorted(kwargs)}")
-        return RigModelPolicy.for_env(env, model=p)
+        pol = RigModelPolicy.for_env(env, model=p)
+        _check_commissioned_rig(pol, env)
+        return pol
     f = _model_file(p)
     layout = env.unwrapped.observation_layout()
     if f.suffix.lower() == ".json":  # a Gas-Law K calibration (python -m agents.gaslaw --out)
-        from .gaslaw import k_table, read_calibration
+        from .gaslaw import k_table, read_calibration, rule_options
 
         if kwargs:
             raise ValueError(f"{f} is a Gas-Law calibration: it takes no overrides, got "
                              f"{sorted(kwargs)}")
         data = read_calibration(f)
-        pol = GasLawPolicy.for_env(env, k=k_table(data))
+        pol = GasLawPolicy.for_env(env, k=k_table(data), **rule_options(data))  # its formula
         pol.source, pol.trained_rig = f"Gas-Law calibration {f}", data.get("rig")
         check_rig(pol, None, env)
         return pol

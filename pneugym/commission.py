@@ -243,7 +243,7 @@ class Commissioned:
                     np.isfinite(values).all() and np.isfinite(u).all()
                     and np.isfinite(cov).all()):
                 raise ValueError("values, u and cov_u must be finite, one per parameter")
-            return cls(rig=RigParams.from_dict(d["rig"]),
+            m = cls(rig=RigParams.from_dict(d["rig"]),
                        stated=RigParams.from_dict(d["stated"]), params=params, values=values,
                        u=u, cov_u=cov, ssr=_number(d, "ssr"), n=_count(d, "n"),
                        kappa=_number(d, "kappa"), runs=_names(d, "runs"),
@@ -254,6 +254,8 @@ class Commissioned:
                        alternative_deltas=[_number(d, "alternative_deltas", v, -math.inf)
                                            for v in d.get("alternative_deltas", [])],
                        refitted=_flag(d, "refitted"))
+            m.rig_at(m.values)  # every parameter's path names a field of the stated rig
+            return m
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 

@@ -68,9 +68,17 @@ def test_predict_on_one_observation_and_a_batch(name):                 # tests/t
     env = CutOffEnv(history=2, observe_rig=rig)
     pol = make_policy(name, env)
     assert pol.name == name
-    obs, _ = env.reset(seed=0)
+    obs, info = env.reset(seed=0)
+    if pol.needs_conditions:  # the oracle and gaslaw-rig plan on each episode's conditions
+        with pytest.raises(RuntimeError, match="begin_episodes"):
+            pol.predict(obs)
+        pol.begin_episodes([Conditions(**info["conditions"])])
     a, state = pol.predict(obs, state="s", episode_start=np.array([True]))
     assert isinstance(a, (int, np.integer)) and a in (0, 1) and state == "s"
+    with pytest.raises(ValueError, match="another environment's layout"):
+        pol.predict(obs[: pol.read.size // 2])
+    with pytest.raises(ValueError, match="NaN"):
+        pol.predict(np.full_like(obs, np.nan))
     batch = np.stack([obs] * 5)
     acts, _ = pol.predict(batch)
     assert acts.shape == (5,) and acts.dtype == np.int64
@@ -231,14 +239,10 @@ def test_oracle_is_privileged(oracle):
     lay = env.observation_layout()
     fresh = OraclePolicy(lay)
     assert fresh.privileged
-    # without the conditions it has no plan: it never cuts
+    # without the conditions it has no plan: it refuses to act (it never cut, silently)
     obs, _ = env.reset(seed=0)
-    for _ in range(240):
-        a, _ = fresh.predict(obs)
-        assert a == 0
-        obs, _, term, trunc, _ = env.step(a)
-        if term or trunc:
-            break
+    with pytest.raises(RuntimeError, match="begin_episodes"):
+        fresh.predict(obs)
     # told the conditions, it cuts at its planned time
     t_best, _ = oracle.plan(NOMINAL["2.5"])
     oracle.begin_episodes([NOMINAL["2.5"], NOMINAL["1.5"]])
@@ -272,3 +276,22 @@ def test_every_step_search_tries_every_control_step(oracle):
     assert max(js.values()) == pytest.approx(j_best, abs=1e-12) and js[t_best] == j_best
     (coarse,) = oracle.returns_many([cond])  # the default search tries fewer
     assert set(coarse) < set(js) and all(js[t] == v for t, v in coarse.items())
+
+
+def test_a_gas_law_calibration_file_loads_with_the_formula_it_was_made_for(tmp_path):
+    """K holds for the rule's options it was calibrated with (recorded as ``policy``)."""
+    import json
+
+    from agents.gaslaw import CALIBRATION_FILE
+    from agents.registry import load_policy
+
+    data = json.loads(CALIBRATION_FILE.read_text())
+    data["policy"] = {"pressure": "absolute", "volume": "position", "n": 1.4}
+    f = tmp_path / "k.json"
+    f.write_text(json.dumps(data))
+    pol = load_policy(f, CutOffEnv())
+    assert (pol.pressure, pol.volume, pol.n) == ("absolute", "position", 1.4)
+    data["policy"] = {"exponent": 2}
+    f.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="policy"):
+        load_policy(f, CutOffEnv())

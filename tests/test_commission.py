@@ -226,6 +226,10 @@ def test_refusals(runs, model, tmp_path):
                           ("refitted", "false", "refitted")):
         with pytest.raises(ValueError, match=f"where: {match}"):
             Commissioned.from_dict({**model.to_dict(), key: v}, "where")
+    bad = model.to_dict()
+    bad["params"][0]["path"] = "valve.nonexistent"  # planned on no member at all: refused
+    with pytest.raises(ValueError, match="where: .*nonexistent"):
+        Commissioned.from_dict(bad, "where")
     with pytest.raises(FileNotFoundError, match="pneugym commission"):
         Commissioned.load(tmp_path / "missing")
     env = CutOffVectorEnv(num_envs=1, observe_rig=True)
@@ -246,6 +250,12 @@ def test_refusals(runs, model, tmp_path):
     with pytest.raises(ValueError, match="no overrides"):
         load_policy(model.folder, env, margin=0.1)
     assert isinstance(load_policy(model.folder, env), RigModelPolicy)
+    from agents.registry import RigMismatchWarning
+    from pneugym.presets import cylinder_rig
+
+    other = CutOffVectorEnv(num_envs=1, observe_rig=True, rig=cylinder_rig(63, 400.0))
+    with pytest.warns(RigMismatchWarning, match="commissioned on another rig"):
+        load_policy(model.folder, other)
     assert main([str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
 
 

@@ -230,3 +230,26 @@ def test_mpc_needs_the_rig_features_and_valid_options():
                 {"coarse": True}, {"prior_members": -1}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             ModelPredictivePolicy.for_env(probe, **bad)
+
+
+def test_mpc_plans_on_the_drive_chambers_dead_volume_and_the_episodes_cylinder():
+    """The observed dead volume is the driving side's in all: a rig file's extra volume at the
+    port is not counted twice, and on the retract stroke it is the rod side's; a cylinder of
+    the episode's own (rig_changes: design, mounting angle) is the one planned on."""
+    for rig in (RigParams().with_(effects={"dead_volume_m3": 3e-4}),
+                RigParams().with_(stroke_direction="retract", cylinder={"dead_volume_rod_m3": 1e-4})):
+        env = CutOffVectorEnv(num_envs=1, observe_rig=True, rig=rig)
+        obs, _ = env.reset(seed=1)
+        pol = ModelPredictivePolicy.for_env(env, prior_members=0)
+        planned = pol._conditions(obs, 0, nominal(pol.base)).rig(pol.base)
+        for side in ("drive_dead_volume_m3", "exhaust_dead_volume_m3"):
+            assert getattr(planned, side) == pytest.approx(getattr(env.rig, side), rel=1e-4)
+        assert planned.effects.dead_volume_m3 == env.rig.effects.dead_volume_m3
+    env = CutOffVectorEnv(num_envs=1, observe_rig=True)
+    pol = ModelPredictivePolicy.for_env(env, prior_members=0)
+    tilted = Conditions(rig_changes=(("cylinder.design", "single-rod"),
+                                     ("cylinder.mounting_angle_deg", 60.0)))
+    obs, _ = env.reset(seed=1, options={"conditions": [tilted]})
+    pol.begin_episodes([tilted])
+    planned = pol._conditions(obs, 0, nominal(pol.base)).rig(pol.base)
+    assert planned.cylinder.design == "single-rod" and planned.cylinder.mounting_angle_deg == 60.0

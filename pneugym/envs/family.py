@@ -35,7 +35,7 @@ CHANGEABLE = (
     "friction.viscous_n_s_per_m", "effects.leak_drive_area_m2", "effects.leak_piston_area_m2",
     "effects.heat_transfer_time_constant_s", "effects.stribeck_force_n",
     "effects.stribeck_velocity_m_s", "effects.sensor_lag_s",
-    "solver.dt_s", "cylinder.design", "cylinder.mounting_angle_deg",
+    "solver.dt_s", "cylinder.design", "cylinder.mounting_angle_deg", "cylinder.dead_volume_rod_m3",
 )
 
 
