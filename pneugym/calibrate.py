@@ -191,8 +191,14 @@ def main(argv: list[str] | None = None) -> None:
         base = RigParams()
         x0 = np.array([getattr(getattr(base, u.group), u.name) for u in UNKNOWNS])
     if a.start:
-        prev = json.loads(pathlib.Path(a.start).read_text())["parameters"]
-        x0 = np.array([prev[f"{u.group}.{u.name}"] for u in UNKNOWNS])
+        try:
+            prev = json.loads(pathlib.Path(a.start).read_text())["parameters"]
+            x0 = np.array([float(prev[f"{u.group}.{u.name}"]) for u in UNKNOWNS])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            ap.error(f"--start {a.start}: not a calibration record with every parameter "
+                     f"({type(exc).__name__}: {exc})")
+    if a.max_nfev < 1:
+        ap.error(f"--max-nfev {a.max_nfev}: must be >= 1")
     t0 = time.perf_counter()
     theta, sol = calibrate(a.max_nfev, x0)
     rep = report(theta)

@@ -992,3 +992,61 @@ def test_the_bench_reads_every_model_form_from_one_run(capsys, load_bench):
     assert stated["name_accuracy"] == 0.0 and stated["control_accuracy"] == 1.0
     assert stated["confusion"]["leakage"]["none"] == 1
     assert "the same cases on the stated form only" in capsys.readouterr().out
+
+
+def test_runs_the_workflow_cannot_fit_honestly_are_refused(protocol_runs, tmp_path):
+    """Runs built in Python are checked as the CSV reader checks files (a NaN gave 'no gap'),
+    and so is what no file check sees: a run given twice (by name, or a copy under another
+    name, which could be held out against itself), runs of two rigs, a supply column far from
+    the stated set-point (gauge written as absolute), too few samples to estimate the noise."""
+    import dataclasses
+
+    from pneugym.discrepancy.workflow import check_runs
+
+    known, runs = protocol_runs
+    check_runs(runs)
+    quick = {**FAST, "n_starts": 1, "n_probe": 2, "max_nfev": 5}
+
+    def changed(run, **kw):
+        return dataclasses.replace(run, **kw)
+
+    bad_p = runs[0].p_drive.copy()
+    bad_p[10] = np.nan
+    cases = [
+        ([changed(runs[0], p_drive=bad_p), *runs[1:]], "NaN"),
+        ([runs[0], changed(runs[1], name=runs[0].name), runs[2]], "same name"),
+        ([*runs, changed(runs[0], name="copy")], "same samples"),
+        ([changed(r, t=r.t[:20], valve=r.valve[:20], x=r.x[:20], p_drive=r.p_drive[:20],
+                  p_exhaust=r.p_exhaust[:20]) for r in runs], "fewer than 50"),
+        ([runs[0], changed(runs[1], meta={**runs[1].meta, "rig": {
+            **runs[1].meta.get("rig", {}), "line_length_m": 2.0}}), runs[2]],
+         "another cylinder or line"),
+        ([changed(runs[0], p_supply=np.full(len(runs[0]), known.supply_pressure_gauge_pa)),
+          *runs[1:]], "looks absolute"),
+    ]
+    for given, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            Discrepancy(["leakage"], **quick).fit(given)
+    with pytest.raises(ValueError, match="given twice"):
+        Discrepancy(["leakage", "leakage"])
+    wf = Discrepancy(["leakage"], **quick)
+    with pytest.raises(RuntimeError, match="fit"):
+        wf.report(tmp_path / "r")
+    assert not (tmp_path / "r").exists()
+
+
+def test_runs_stating_their_own_discharge_coefficients_get_one_factor_on_each():
+    """As with friction: runs whose JSON state different coefficients keep them, scaled by one
+    fitted factor (one absolute value for all made the model 55 times worse than the input)."""
+    known = thesis_rig(2.5)
+    rel = nominal_params(known, extended=False, relative_cd=0.9)[0]
+    assert rel.path == "valve.discharge_coefficient" and rel.relative
+    assert rel.stated(known) == 1.0 and rel.hi == pytest.approx(1 / 0.9)
+    runs = [simulate_run(known.with_(valve={"discharge_coefficient": cd}), t_end=1.5,
+                         sample_rate_hz=200.0, noise="default", seed=k, name=f"run{k}",
+                         cut_on_arrival=k == 1)
+            for k, cd in enumerate((0.72, 0.55, 0.72))]
+    quick = {**FAST, "n_starts": 1, "n_probe": 2, "max_nfev": 10}
+    wf = Discrepancy(["dead_volume"], calibrate="basic", holdout=None, **quick).fit(runs)
+    assert wf.nominal_params_[0].relative
+    assert wf.gap_after < 2 * wf.gap_before

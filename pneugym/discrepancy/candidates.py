@@ -117,8 +117,8 @@ EXTENDED = (
 )
 
 
-def nominal_params(rig: RigParams, extended: bool = True,
-                   relative_friction: bool = False) -> tuple[FitParam, ...]:
+def nominal_params(rig: RigParams, extended: bool = True, relative_friction: bool = False,
+                   relative_cd: float | None = None) -> tuple[FitParam, ...]:
     """The nominal parameters calibrated before any effect (issue step 2), around the values
     ``rig`` states: orifice discharge coefficient of all orifices (0.5x to 1.3x the stated
     value, at most 1), static (breakaway), Coulomb and viscous friction; log-scaled (one
@@ -128,11 +128,18 @@ def nominal_params(rig: RigParams, extended: bool = True,
     these parameters absorb much of that before any effect is tried. The dead volume is not
     freed: it is a candidate effect. With ``relative_friction`` the friction is fitted as
     factors on each run's stated friction (the same bounds and transformed variable), for runs
-    that state friction of their own (each stroke's, :func:`pneugym.operation.monitor.monitor`)."""
+    that state friction of their own (each stroke's, :func:`pneugym.operation.monitor.monitor`).
+    With ``relative_cd`` (the largest of the runs' stated coefficients, when they differ) the
+    discharge coefficient is fitted as one factor on each run's stated value (the same bounds,
+    each run's at most 1)."""
     cd = rig.valve.discharge_coefficient
     fr = rig.friction
-    out = [FitParam("valve.discharge_coefficient", 0.5 * cd, min(1.0, 1.3 * cd), cd, log=True,
-                    log_step=0.1, unit="-")]
+    if relative_cd is not None:
+        out = [FitParam("valve.discharge_coefficient", 0.5, min(1.0 / relative_cd, 1.3), 1.0,
+                        log=True, log_step=0.1, unit="x stated", relative=True)]
+    else:
+        out = [FitParam("valve.discharge_coefficient", 0.5 * cd, min(1.0, 1.3 * cd), cd,
+                        log=True, log_step=0.1, unit="-")]
     for name, val, default, lo_f, hi_f in (("static_n", fr.static_n, 359.0, 1 / 3, 3.0),
                                            ("coulomb_n", fr.coulomb_n, 126.0, 0.05, 4.0),
                                            ("viscous_n_s_per_m", fr.viscous_n_s_per_m, 1557.0, 0.02, 5.0)):

@@ -88,8 +88,9 @@ class FrictionDiscrepancy:
         self.force_n = np.asarray(self.force_n, float)
         if self.velocity_m_s.shape != self.force_n.shape or self.velocity_m_s.size < 6:
             raise ValueError("velocity_m_s and force_n need the same length (at least 6 points)")
-        if (self.velocity_m_s < 0).any() or not np.isfinite(self.force_n).all():
-            raise ValueError("velocities must be >= 0 and forces finite")
+        if not (np.isfinite(self.velocity_m_s).all() and np.isfinite(self.force_n).all()) \
+                or (self.velocity_m_s < 0).any():
+            raise ValueError("velocities must be finite and >= 0, and forces finite")
         if self.static not in ("breakaway", "curve"):
             raise ValueError("static must be 'breakaway' or 'curve'")
         order = np.argsort(self.velocity_m_s, kind="stable")

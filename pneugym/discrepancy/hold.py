@@ -435,6 +435,9 @@ def read_hold(path: str) -> HoldRecord:
         pr = np.array([float(r[ip]) for r in rows[1:] if r])
     except (ValueError, IndexError):
         raise ValueError(f"hold record {path}: every row needs numbers in t and p_drive") from None
+    if p.stem in ("", ".", "..") or p.stem.startswith("."):
+        raise ValueError(f"hold record {path}: its file name {p.name!r} gives no record name "
+                         f"(its report goes to a folder of that name): rename the file")
     return HoldRecord(p.stem, t, pr, source=str(p))
 
 

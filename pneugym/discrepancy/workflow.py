@@ -21,6 +21,7 @@ bounded number of samples (:mod:`pneugym.discrepancy.prepare`); the report says 
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -94,6 +95,80 @@ def noise_floor_warning(channels: Sequence[str]) -> str:
             f"segments, so the residuals are in units of a floor ({floors}) instead of the "
             f"measured noise; their sizes in sigma and the significance tests are not meaningful "
             f"(simulated data without noise, or a coarsely quantised sensor?)")
+
+
+def _geometry(rig: RigParams) -> tuple[float, ...]:
+    """What one rig's runs share whatever their operating point: the cylinder's bore, rod and
+    stroke, the line's length and diameter [m]."""
+    c = rig.cylinder
+    return (c.bore_m, c.rod_m, c.stroke_m, rig.line.length_m, rig.line.diameter_m)
+
+
+#: the fewest samples a run may have: two of the noise estimate's quiet windows
+MIN_SAMPLES = 50
+#: a run's supply column further than this from the set-point its JSON states [Pa] is refused
+SUPPLY_TOLERANCE_PA = 0.5e5
+
+
+def check_runs(runs: Sequence[MeasuredRun], base: RigParams | None = None) -> None:
+    """Refuse what the workflow cannot fit honestly, naming the run: runs given twice (by name
+    or as the same samples: a held-out copy of a fitted run), too short to estimate their noise,
+    arrays of unequal length, not finite or not increasing in time, pressures outside the
+    absolute range, and a supply column (``p_supply``) far from the set-point the run's JSON
+    states (gauge written as absolute?). The CSV reader checks a file's columns; these checks
+    also hold for runs built in Python."""
+    from ..data import OPTIONAL_COLUMNS, PRESSURE_COLUMNS, PRESSURE_RANGE_PA, REQUIRED_COLUMNS
+
+    seen: dict[str, str] = {}
+    first: tuple[str, tuple[float, ...]] | None = None
+    for r in runs:
+        if not isinstance(r, MeasuredRun):
+            raise ValueError(f"runs must all be MeasuredRun objects (or all paths), got "
+                             f"{type(r).__name__}")
+        cols = {c: getattr(r, c) for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
+                if getattr(r, c) is not None}
+        n = len(r.t)
+        if any(np.shape(v) != (n,) for v in cols.values()):
+            raise ValueError(f"run {r.name!r}: its columns differ in length "
+                             f"({', '.join(f'{c} {np.size(v)}' for c, v in cols.items())})")
+        if n < MIN_SAMPLES:
+            raise ValueError(f"run {r.name!r}: {n} samples, fewer than {MIN_SAMPLES} (the noise "
+                             f"is estimated on quiet windows of 25 samples)")
+        for c, v in cols.items():
+            if not np.isfinite(v).all():
+                raise ValueError(f"run {r.name!r}: column {c!r} holds NaN or infinity "
+                                 f"(sample {int(np.flatnonzero(~np.isfinite(v))[0])})")
+        if not (np.diff(r.t) > 0).all():
+            raise ValueError(f"run {r.name!r}: its time t does not increase")
+        lo, hi = PRESSURE_RANGE_PA
+        for c in PRESSURE_COLUMNS:
+            if c in cols and not ((cols[c] >= lo) & (cols[c] <= hi)).all():
+                raise ValueError(f"run {r.name!r}: column {c!r} leaves [{lo:g}, {hi:g}] Pa "
+                                 f"absolute (bar or gauge by mistake?)")
+        key = hashlib.sha256(b"".join(np.ascontiguousarray(cols[c], float).tobytes()
+                                      for c in ("t", "x", "p_drive", "p_exhaust"))).hexdigest()
+        for other, what in ((seen.get(r.name), "name"), (seen.get(key), "samples")):
+            if other is not None:
+                raise ValueError(f"run {r.name!r} has the same {what} as run {other!r}: a run "
+                                 f"given twice (a copy would be held out against itself)")
+        seen[r.name], seen[key] = r.name, r.name
+        rig = r.rig(base)
+        shape = _geometry(rig)
+        if first is None:
+            first = (r.name, shape)
+        elif shape != first[1]:
+            raise ValueError(f"run {r.name!r} states another cylinder or line than run "
+                             f"{first[0]!r} ({shape} against {first[1]}: bore, rod, stroke, line "
+                             f"length and diameter [m]): the runs of one workflow are one rig's")
+        if r.p_supply is not None:
+            med = float(np.median(r.p_supply))
+            if abs(med - rig.supply_pressure_pa) > SUPPLY_TOLERANCE_PA:
+                hint = (" (its supply_pressure_gauge_pa looks absolute)" if
+                        abs(med - rig.supply_pressure_gauge_pa) < 0.1e5 else "")
+                raise ValueError(
+                    f"run {r.name!r}: its supply column p_supply (median {med:,.0f} Pa "
+                    f"absolute) is far from the set-point its JSON states ({rig.supply_pressure_pa:,.0f} "
+                    f"Pa absolute){hint}")
 
 
 @dataclass
@@ -220,6 +295,10 @@ class Discrepancy:
                                  f"{sorted(CANDIDATES) + sorted(MORE_CANDIDATES)}")
         if not cands:
             raise ValueError("at least one candidate is needed")
+        names = [c.name for c in cands]
+        if len(set(names)) < len(names):
+            raise ValueError(f"candidate {next(n for n in names if names.count(n) > 1)!r} is "
+                             f"given twice (it would be compared with itself)")
         if calibrate not in ("extended", "basic"):
             raise ValueError(f"Discrepancy calibrate = {calibrate!r} must be 'extended' or 'basic'")
         freed = {q.path for q in nominal_params(RigParams(), extended=calibrate == "extended")}
@@ -286,11 +365,13 @@ class Discrepancy:
         the stated form's result stands unless another's updated model fits clearly better
         (:meth:`_choose_form`)."""
         t0 = time.perf_counter()
-        runs = list(runs)
+        runs = [runs] if isinstance(runs, (str, Path, MeasuredRun)) else list(runs)
         if runs and not isinstance(runs[0], MeasuredRun):
             runs = read_runs(runs, base)
         if not runs:
             raise ValueError("no runs given")
+        check_runs(runs, base)
+        self.separation_ = None
         self._fit_form(runs, base, None, t0)
         stated = (self.line_model_, self.orifice_model_)
         lines = forms_tried(stated[0], self.line_models, LINE_MODELS, "line model")
@@ -337,6 +418,7 @@ class Discrepancy:
                   form: tuple[str, str] | None, t0: float) -> Discrepancy:
         """The workflow on one model form, ``(line model, orifice law)`` (``None``: the runs'
         own)."""
+        self.separation_ = None  # (a form's own: never the form tried before)
         self.rigs_ = [r.rig(base) for r in runs]
         # the rigs in the model's form: the runs' own, or with the form tried
         self.model_rigs_ = self.rigs_ if form is None else [_in_form(g, form) for g in self.rigs_]
@@ -356,9 +438,12 @@ class Discrepancy:
         # factor on each run's friction instead of one friction for all
         self.relative_friction_ = len({(g.friction.static_n, g.friction.coulomb_n,
                                         g.friction.viscous_n_s_per_m) for g in self.rigs_}) > 1
+        # runs that state discharge coefficients of their own: one factor on each run's too
+        cds = {g.valve.discharge_coefficient for g in self.rigs_}
         nom = nominal_params(self.rigs_[[r.name for r in runs].index(self.fit_runs_[0].name)],
                              extended=self.calibrate == "extended",
-                             relative_friction=self.relative_friction_) + self.calibrate_also
+                             relative_friction=self.relative_friction_,
+                             relative_cd=max(cds) if len(cds) > 1 else None) + self.calibrate_also
         if (self.orifice_model_ == "iso6358" and self.rigs_[0].valve.flow_model != "iso6358"
                 and ISO_B.path not in {q.path for q in nom}):
             nom += (ISO_B,)  # the law the runs do not state: its critical ratio is unknown
@@ -377,7 +462,11 @@ class Discrepancy:
             # (1) nominal replay, (2) calibration of the nominal parameters
             self.sims_ = {"nominal": [replay(r, g) for r, g in zip(runs, self.rigs_)]}
             json_vals = np.array([p.stated(fit_bases[0]) for p in nom])
-            self.no_gap_ = not self._gaps(self.sims_["nominal"])["all"]["overall"] > NO_GAP
+            gap = self._gaps(self.sims_["nominal"])["all"]["overall"]
+            if not np.isfinite(gap):
+                raise SimulationError(f"the nominal model's gap to the runs is {gap}: a run or "
+                                      f"its replay is not finite")
+            self.no_gap_ = gap <= NO_GAP
             if self.no_gap_:
                 # the JSON's model reproduces every run to round-off: nothing to calibrate,
                 # no effect to look for (a fit could only chase the fixed substep's round-off)
@@ -752,14 +841,21 @@ class Discrepancy:
         return out
 
     # --------------------------------------------------------------------------------------
+    def _fitted_yet(self) -> None:
+        """Refuse what needs a fit before :meth:`fit` has run."""
+        if not hasattr(self, "updated_rigs_"):
+            raise RuntimeError("the workflow has not been fitted: call fit(runs) first")
+
     @property
     def gap_before(self) -> float:
         """Overall NRMSE of the nominal model (as the runs' JSON give it) over all runs."""
+        self._fitted_yet()
         return self.gaps_["nominal"]["all"]["overall"]
 
     @property
     def gap_after(self) -> float:
         """Overall NRMSE of the updated model over all runs."""
+        self._fitted_yet()
         return self.gaps_["updated"]["all"]["overall"]
 
     @property
@@ -794,6 +890,7 @@ class Discrepancy:
         (:meth:`prepared`), so an hour-long run is not simulated for an hour. The channels are
         at the times under ``"t"``: the run's own sample times for a run up to 20 s and
         ``max_samples`` samples, else those of the prepared run."""
+        self._fitted_yet()
         (p,) = self.prepared([run], base)
         out = replay(p, self.updated_rig(p, base))
         out["t"] = p.t.copy()
@@ -802,6 +899,7 @@ class Discrepancy:
     def score(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> float:
         """Overall NRMSE of the updated model on ``runs`` (lower is better), on the runs as
         :meth:`prepared` cuts them (the same windows and averaging as the fit's gaps)."""
+        self._fitted_yet()
         prepared = self.prepared(runs, base)
         return nrmse(prepared, [replay(p, self.updated_rig(p, base)) for p in prepared])["overall"]
 
@@ -815,6 +913,7 @@ class Discrepancy:
         as a whole (the set replaces the folder's old one only once every file is written).
         Raises :class:`pneugym.outputs.OutputError` (a ``ValueError``) naming ``out`` if it
         cannot be a writable folder; returns the path of ``report.json``."""
+        self._fitted_yet()  # (before the folder is made)
         if isinstance(out, str) and not out.strip():
             raise OutputError(f"report folder {out!r} is empty: give a folder path (an empty "
                               f"path would write into the current folder)")
