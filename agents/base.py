@@ -39,7 +39,7 @@ class Policy:
     #: whether :meth:`act` needs :meth:`begin_episodes` first (it plans or calibrates on each
     #: episode's conditions: the oracle, the per-rig Gas-Law rule)
     needs_conditions = False
-    _told = False
+    _told_rows: int | None = None  # how many episodes' conditions it was last told
 
     def __init__(self, layout: Mapping[str, Any]):
         self.read = ObservationReader(layout)
@@ -70,11 +70,17 @@ class Policy:
         if not np.isfinite(o).all():
             raise ValueError(f"{self.name}: the observation holds NaN or infinity "
                              f"(a sensor or the environment failed)")
-        if self.needs_conditions and not self._told:
-            raise RuntimeError(f"{self.name} plans on each episode's conditions: call "
-                               f"begin_episodes(conditions) after each reset (evaluate.py and "
-                               f"run_first_episodes do)")
         single = o.ndim == 1
+        if self.needs_conditions:
+            rows = 1 if single else o.shape[0]
+            if self._told_rows is None:
+                raise RuntimeError(f"{self.name} plans on each episode's conditions: call "
+                                   f"begin_episodes(conditions) after each reset (evaluate.py "
+                                   f"and run_first_episodes do)")
+            if rows != self._told_rows:
+                raise ValueError(f"{self.name} was told {self._told_rows} episodes' conditions "
+                                 f"(begin_episodes), given {rows} observations: one condition "
+                                 f"per observation row")
         o = o.reshape(-1, self.read.size)
         a = np.asarray(self.act(o), dtype=np.int64).reshape(o.shape[0])
         return (a[0] if single else a), state

@@ -199,14 +199,15 @@ class GasLawPerRigPolicy(GasLawPolicy):
         return cls(u.observation_layout(), env_config=u.config, **{"rig": u.rig, **kwargs})
 
     def table(self, changes: tuple = ()) -> dict[float, float]:
-        """``{supply_bar_gauge: K}`` calibrated on the rig with ``changes`` (cached)."""
+        """``{supply_bar_gauge: K}`` calibrated on the rig with ``changes`` (cached), for this
+        rule's formula (its ``n``, ``pressure`` and ``volume``)."""
         if changes not in self._tables:
             from pneugym.envs.family import apply_changes
 
             rig = apply_changes(self.rig, changes)
             self._tables[changes] = k_table(calibrate(
                 self.SUPPLIES_BAR, env_config={**self.env_config, "rig": rig}, seed=self.seed,
-                progress=False))
+                progress=False, n=self.n, pressure=self.pressure, volume=self.volume))
         return self._tables[changes]
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:
@@ -216,7 +217,7 @@ class GasLawPerRigPolicy(GasLawPolicy):
             t = self.table(getattr(c, "rig_changes", ()))
             ks.append(np.interp(c.supply_bar_gauge, list(t), list(t.values())))
         self._k_bar, self.k = None, np.array(ks)
-        self._told = True
+        self._told_rows = len(conditions)
 
 
 def sweep(supply_bar: float, ks: Sequence[float], env_config: Mapping[str, Any] | None = None,

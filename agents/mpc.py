@@ -184,9 +184,12 @@ class ModelPredictivePolicy(TimedCutPolicy):
         row = obs[i:i + 1]
         length, dia, vol, load = (float(self.read(row, k)[0]) for k in DATASHEET)
         # the observed dead volume is the driving side's in all (the chamber's and an extra
-        # volume at the port the rig file states, which the base rig adds again)
-        chamber = "cylinder.dead_volume_m3" if self.base.stroke_direction == "extend" else \
-            "cylinder.dead_volume_rod_m3"
+        # volume at the port the rig file states, which the base rig adds again); the rod
+        # side's own field only where the rig file gives the rod side one (else both sides
+        # share dead_volume_m3, as the rig family draws it)
+        own_rod = self.base.cylinder.dead_volume_rod_m3 is not None
+        chamber = "cylinder.dead_volume_rod_m3" if (
+            self.base.stroke_direction == "retract" and own_rod) else "cylinder.dead_volume_m3"
         extra = self.base.effects.dead_volume_m3
         changes = {"line.length_m": round(length, 6), "line.diameter_m": round(dia, 7),
                    chamber: float(f"{max(vol - extra, 1e-9):.5g}"),

@@ -187,4 +187,4 @@ class OraclePolicy(TimedCutPolicy):
 
     def begin_episodes(self, conditions: Sequence[Any]) -> None:
         self.t_cut_s = np.array([t for t, _ in self.plan_many(conditions)])
-        self._told = True
+        self._told_rows = len(conditions)

@@ -782,7 +782,9 @@ def simulate_run(params: RigParams, schedule: Sequence[tuple[float, int]] = ((0.
     n = len(traj)
     t = np.round(traj["t"] / dt) * dt
     valve = np.zeros(n)
-    for ts, v in sorted(schedule):  # the command in force at each sample (acts from its time on)
+    # the command in force at each sample (acts from its time on; of two at one time, the last,
+    # as the plant takes them: check_schedule keeps their order)
+    for ts, v in sorted(schedule, key=lambda c: c[0]):
         valve[t >= ts - 1e-9] = float(v)
     cols = {
         "t": t,

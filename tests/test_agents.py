@@ -80,6 +80,10 @@ def test_predict_on_one_observation_and_a_batch(name):                 # tests/t
     with pytest.raises(ValueError, match="NaN"):
         pol.predict(np.full_like(obs, np.nan))
     batch = np.stack([obs] * 5)
+    if pol.needs_conditions:  # one condition per row
+        with pytest.raises(ValueError, match="told 1 episodes"):
+            pol.predict(batch)
+        pol.begin_episodes([Conditions(**info["conditions"])] * 5)
     acts, _ = pol.predict(batch)
     assert acts.shape == (5,) and acts.dtype == np.int64
     assert np.array_equal(acts, np.full(5, a))

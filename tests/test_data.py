@@ -486,3 +486,10 @@ def test_zero_moving_mass_is_refused(run_files, clean_run):
     with pytest.raises(MeasurementFormatError, match=r"run 'clean'.*moving mass"):
         MeasuredRun(name="clean", t=clean_run.t, valve=clean_run.valve, x=clean_run.x,
                     p_drive=clean_run.p_drive, p_exhaust=clean_run.p_exhaust, meta=meta).rig()
+
+
+def test_a_simulated_runs_valve_column_is_the_command_the_plant_took():
+    """Of two commands at one time the last holds, in the plant and in the recorded column
+    (the column said open while the plant had cut)."""
+    run = simulate_run(thesis_rig(2.5), schedule=[(0.0, 1), (0.4, 1), (0.4, 0)], t_end=1.0)
+    assert run.valve[-1] == 0.0 and run.schedule() == [(0.0, 1), (0.4, 0)]

@@ -1022,7 +1022,7 @@ def test_runs_the_workflow_cannot_fit_honestly_are_refused(protocol_runs, tmp_pa
             **runs[1].meta.get("rig", {}), "line_length_m": 2.0}}), runs[2]],
          "another cylinder or line"),
         ([changed(runs[0], p_supply=np.full(len(runs[0]), known.supply_pressure_gauge_pa)),
-          *runs[1:]], "looks absolute"),
+          *runs[1:]], "column written as gauge"),
     ]
     for given, msg in cases:
         with pytest.raises(ValueError, match=msg):
@@ -1033,6 +1033,12 @@ def test_runs_the_workflow_cannot_fit_honestly_are_refused(protocol_runs, tmp_pa
     with pytest.raises(RuntimeError, match="fit"):
         wf.report(tmp_path / "r")
     assert not (tmp_path / "r").exists()
+    for what in ("updated_model", "held_out_tested", "gap_before"):
+        with pytest.raises(RuntimeError, match="fit"):
+            getattr(wf, what)
+    wf = Discrepancy(["leakage"], holdout=None, **quick).fit(runs[:1])
+    with pytest.raises(ValueError, match="NaN"):
+        wf.score([cases[0][0][0]])
 
 
 def test_runs_stating_their_own_discharge_coefficients_get_one_factor_on_each():
@@ -1049,4 +1055,4 @@ def test_runs_stating_their_own_discharge_coefficients_get_one_factor_on_each():
     quick = {**FAST, "n_starts": 1, "n_probe": 2, "max_nfev": 10}
     wf = Discrepancy(["dead_volume"], calibrate="basic", holdout=None, **quick).fit(runs)
     assert wf.nominal_params_[0].relative
-    assert wf.gap_after < 2 * wf.gap_before
+    assert wf.gap_after < 1.1 * wf.gap_before  # (one value for all: 50 times the gap)

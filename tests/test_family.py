@@ -369,3 +369,13 @@ def test_a_family_refuses_bounds_no_rig_can_take_and_non_numbers(kwargs, msg):
     its draws silently redrawn); bools and strings are not numbers."""
     with pytest.raises(ValueError, match=msg):
         RigFamily(**kwargs)
+
+
+def test_the_suites_held_out_draws_name_a_base_the_family_cannot_draw_on():
+    """A base no draw can be built on (cushions of 5-25 mm on a 10 mm stroke) is said, not
+    redrawn for ever (``pneugym evaluate --rig FILE --suite transfer`` hung)."""
+    from agents.evaluation.suites import held_out_draws
+    from pneugym.presets import cylinder_rig
+
+    with pytest.raises(ValueError, match="half the stroke"):
+        held_out_draws("family", 1, 0, cylinder_rig(32, 10.0))

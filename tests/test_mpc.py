@@ -237,7 +237,8 @@ def test_mpc_plans_on_the_drive_chambers_dead_volume_and_the_episodes_cylinder()
     port is not counted twice, and on the retract stroke it is the rod side's; a cylinder of
     the episode's own (rig_changes: design, mounting angle) is the one planned on."""
     for rig in (RigParams().with_(effects={"dead_volume_m3": 3e-4}),
-                RigParams().with_(stroke_direction="retract", cylinder={"dead_volume_rod_m3": 1e-4})):
+                RigParams().with_(stroke_direction="retract", cylinder={"dead_volume_rod_m3": 1e-4}),
+                RigParams().with_(stroke_direction="retract", cylinder={"dead_volume_m3": 1e-4})):
         env = CutOffVectorEnv(num_envs=1, observe_rig=True, rig=rig)
         obs, _ = env.reset(seed=1)
         pol = ModelPredictivePolicy.for_env(env, prior_members=0)

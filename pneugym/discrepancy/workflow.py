@@ -163,8 +163,10 @@ def check_runs(runs: Sequence[MeasuredRun], base: RigParams | None = None) -> No
         if r.p_supply is not None:
             med = float(np.median(r.p_supply))
             if abs(med - rig.supply_pressure_pa) > SUPPLY_TOLERANCE_PA:
-                hint = (" (its supply_pressure_gauge_pa looks absolute)" if
-                        abs(med - rig.supply_pressure_gauge_pa) < 0.1e5 else "")
+                hint = (" (one of them off by the ambient pressure: the column written as "
+                        "gauge, or the JSON's supply_pressure_gauge_pa as absolute?)" if
+                        abs(abs(med - rig.supply_pressure_pa) - rig.gas.ambient_pressure_pa)
+                        < 0.1e5 else "")
                 raise ValueError(
                     f"run {r.name!r}: its supply column p_supply (median {med:,.0f} Pa "
                     f"absolute) is far from the set-point its JSON states ({rig.supply_pressure_pa:,.0f} "
@@ -867,11 +869,13 @@ class Discrepancy:
     @property
     def updated_model(self) -> RigParams:
         """The updated rig (at the operating point of the first fitted run)."""
+        self._fitted_yet()
         return self.updated_rigs_[self.runs_.index(self.fit_runs_[0])]
 
     def updated_rig(self, run: MeasuredRun, base: RigParams | None = None) -> RigParams:
         """The updated model at the operating point of any run (its JSON + the fitted values),
         in the model form the workflow kept."""
+        self._fitted_yet()
         params, vals = self._fitted
         rig = _in_form(run.rig(base), (self.line_model_, self.orifice_model_))
         return apply(rig, params, vals)
@@ -879,8 +883,10 @@ class Discrepancy:
     def prepared(self, runs: Sequence[MeasuredRun], base: RigParams | None = None) -> list[MeasuredRun]:
         """``runs`` cut to their informative window and block-averaged as :meth:`fit` does
         (same ``max_samples``; :mod:`pneugym.discrepancy.prepare`): what :meth:`predict` and
-        :meth:`score` simulate. Runs up to 20 s and ``max_samples`` come back as they are."""
+        :meth:`score` simulate. Runs up to 20 s and ``max_samples`` come back as they are.
+        They are checked as :meth:`fit` checks its runs (:func:`check_runs`)."""
         runs = list(runs)
+        check_runs(runs, base)
         return prepare(runs, [r.rig(base) for r in runs], self.max_samples)[0]
 
     def predict(self, run: MeasuredRun, base: RigParams | None = None) -> dict[str, np.ndarray]:
@@ -906,6 +912,7 @@ class Discrepancy:
     @property
     def held_out_tested(self) -> bool:
         """Whether the result was checked on a held-out run."""
+        self._fitted_yet()
         return bool(self.holdout_runs_)
 
     def report(self, out: str | Path, plots: bool = True) -> Path:

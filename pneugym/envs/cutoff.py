@@ -298,6 +298,29 @@ def _check_settings(values: Mapping[str, Any], reward_mode: Any) -> None:
         raise ValueError(f"reward_mode = {reward_mode!r}: choose 'dense' or 'sparse'")
 
 
+def _max_valve_delay_s(space: ConditionSpace, rig: RigParams) -> float:
+    """The longest valve delay [s] an episode of ``space`` on ``rig`` can have (the thesis
+    valve's delay is linear in the supply pressure, clipped: longest at an end of the range)."""
+    from .family import apply_changes
+
+    r = apply_changes(rig, space.rig_changes) if space.rig_changes else rig
+    d = max(r.valve.delay_for(p) for p in space.supply_pressure_gauge_pa)
+    if space.family is not None:
+        d = max(d, space.family.valve_delay_s[1] * r.valve.delay_scale)
+    return d * space.valve_delay_scale[1]
+
+
+def _check_queue(delay_s: float, period_s: float) -> None:
+    """A reversible cut-off may change the command every control period: all the changes in
+    flight during one valve delay must fit the valve's queue (``QCAP``)."""
+    if delay_s / period_s + 2 > L.QCAP:
+        raise ValueError(
+            f"reversible=True with a valve delay of up to {delay_s * 1e3:.0f} ms and a "
+            f"{period_s * 1e3:g} ms control period: more valve commands in flight than the "
+            f"valve queues ({L.QCAP}); choose a longer control_period_s or a latched cut-off "
+            f"(reversible=False)")
+
+
 class _CutOffCore:
     """The state and logic shared by :class:`CutOffEnv` (one episode) and
     :class:`CutOffVectorEnv` (a batch): packed plants ``Y, P, D``, episode arrays ``E``."""
@@ -323,6 +346,8 @@ class _CutOffCore:
         base = as_rig(rig, "rig")
         self.config["rig"] = None if rig is None else base  # a file is read once
         self.space: ConditionSpace = resolve(preset, conditions, base)
+        if reversible:  # every episode the space can draw must fit the valve's queue
+            _check_queue(_max_valve_delay_s(self.space, base), float(control_period_s))
         if sensor_lag_s:
             base = base.with_(effects={"sensor_lag_s": float(sensor_lag_s)})
         self.rig = base
@@ -412,12 +437,8 @@ class _CutOffCore:
                 self._starts.clear()
             self._starts[key] = start
         P, y0, d0, e0, datasheet = start
-        if self.reversible and P[L.P_DELAY] / self.control_period_s + 2 > L.QCAP:
-            raise ValueError(
-                f"reversible=True with a {P[L.P_DELAY] * 1e3:.0f} ms valve delay and a "
-                f"{self.control_period_s * 1e3:g} ms control period: more valve commands in "
-                f"flight than the valve queues ({L.QCAP}); choose a longer control_period_s or "
-                f"a latched cut-off (reversible=False)")
+        if self.reversible:  # (conditions given at reset, or settings changed since)
+            _check_queue(float(P[L.P_DELAY]), self.control_period_s)
         self.P[i], self.Y[i], self.D[i], self.E[i] = P, y0, d0, e0
         self._settings(self.E[i])  # public attributes a user (or SB3's set_attr) may change
         self.conditions[i] = cond
