@@ -54,6 +54,7 @@ from pneugym.params import LINE_MODELS, ORIFICE_MODELS  # noqa: E402
 from pneugym.provenance import provenance  # noqa: E402
 
 EFFECTS = tuple(CANDIDATES)
+SECTIONS = {"matrix", "real", "runtime"}
 LABELS = EFFECTS + ("none", "ambiguous")
 #: what a row keeps of another round of the same case
 ROUND_KEYS = ("named", "ambiguous", "gap_after", "gap_reduction", "gap_reduction_vs_calibrated",
@@ -325,10 +326,16 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.quick:
         a.cases, a.controls = 1, 2
+    if a.cases > 6:  # the effects' seeds (offset + 1000 (i + 1) + k) would reach the controls'
+        ap.error(f"--cases {a.cases}: at most 6 per effect (the controls' seeds start at "
+                 f"offset + 7000)")
     kw = dict(seed=0, n_jobs=a.jobs,
               discrepancy_term=None if a.discrepancy_term == "none" else a.discrepancy_term,
               line_models=a.line_models, orifice_models=a.orifice_models)
     only = set(a.only.split(","))
+    if not only <= SECTIONS:
+        ap.error(f"--only {a.only}: unknown section(s) {sorted(only - SECTIONS)}; choose from "
+                 f"{sorted(SECTIONS)}")
     res: dict = {"config": {"cases_per_effect": a.cases, "controls": a.controls, "ranges": RANGES,
                             "form": a.form, "seed_offset": a.seed_offset, "follow_up": a.follow_up,
                             "follow_up_holdout": a.follow_up_holdout,
@@ -355,6 +362,13 @@ def main(argv=None) -> int:
         name = name.replace(".json", "_lines.json")
     if a.follow_up:
         name = name.replace(".json", "_followup.json")
+    # a run of other cases or sections does not overwrite another's results
+    if a.seed_offset:
+        name = name.replace(".json", f"_offset{a.seed_offset}.json")
+    if a.quick:
+        name = name.replace(".json", "_quick.json")
+    if only != SECTIONS:
+        name = name.replace(".json", f"_{'-'.join(sorted(only))}.json")
     (out / name).write_text(json.dumps(res, indent=2, default=float))
     print(f"\nwritten {out / name} ({res['total_wall_s']:.0f} s)")
     return 0

@@ -34,9 +34,10 @@ YARDSTICKS = ("search", "every step", "slip-robust")
 
 
 def step_returns(scenario: dict, seed: int, strokes: np.ndarray, slip: int, chunk: int = 20,
-                 progress: bool = True) -> dict[int, tuple[float, float]]:
+                 progress: bool = True, env: dict | None = None) -> dict[int, tuple[float, float]]:
     """``{drift step: (best return of every step, slip-robust return)}`` of a scenario's
-    strokes."""
+    strokes, on the rig the life ran on (``env``: the record's environment configuration,
+    its rig included; default the thesis rig's)."""
     from tqdm import tqdm
 
     from agents.mpc import robust_best
@@ -46,7 +47,7 @@ def step_returns(scenario: dict, seed: int, strokes: np.ndarray, slip: int, chun
     from pneugym.operation.scenarios import Scenario
 
     sc = Scenario(**scenario)
-    oracle = OraclePolicy.for_env(CutOffVectorEnv(num_envs=1, **ENV_CONFIG), coarse=1)
+    oracle = OraclePolicy.for_env(CutOffVectorEnv(num_envs=1, **(env or ENV_CONFIG)), coarse=1)
     steps = np.unique(strokes // sc.resolution)
     out: dict[int, tuple[float, float]] = {}
     for i in tqdm(range(0, steps.size, chunk), desc=f"{sc.name} seed {seed}", unit="chunk",
@@ -80,11 +81,13 @@ def main(argv: list[str] | None = None) -> dict:
                  "provenance": provenance(), "runs": {}, "scenarios": {}}
     with Record(args.db, read_only=True) as rec:
         runs = [rec.run(r["run_id"]) for r in rec.runs()]
-        lives = {(r["scenario"], r["seed"]): r["config"]["scenario"] for r in runs}
+        lives = {(r["scenario"], r["seed"]): (r["config"]["scenario"], r["config"].get("env"))
+                 for r in runs}
         truth, best = {}, {}
-        for (name, seed), spec in lives.items():
+        for (name, seed), (spec, env) in lives.items():
             t = rec.truth(name, seed, 0, 10**12)
-            st = step_returns(spec, seed, t["stroke"], args.slip, progress=not args.no_progress)
+            st = step_returns(spec, seed, t["stroke"], args.slip, progress=not args.no_progress,
+                              env=env)
             k = t["stroke"] // spec["resolution"]
             ex = np.array([st[int(s)][0] for s in k])
             rb = np.array([st[int(s)][1] for s in k])

@@ -70,7 +70,16 @@ def main(argv=None) -> dict:
         shutil.rmtree(scratch, ignore_errors=True)
     print(fmt_table(["backend", "workers", "wall [s]", "runs / min", "speed-up", "same figures"],
                     rows, title=f"PPO sweep, {len(seeds)} seeds x {steps} steps"))
-    res["machine"], res["versions"] = machine_info(), versions()
+    from pneugym.provenance import provenance
+
+    # (the training timings follow torch and stable-baselines3, the Ray ones Ray)
+    res["machine"], res["versions"] = machine_info(), {**provenance()["versions"], **versions()}
+    try:
+        import ray
+
+        res["versions"]["ray"] = ray.__version__
+    except ImportError:
+        res["versions"]["ray"] = "not installed"
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scale.json").write_text(json.dumps(res, indent=2, default=json_default))

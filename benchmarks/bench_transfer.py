@@ -50,17 +50,26 @@ def points_range() -> dict[str, list[float]]:
 def retrain(name: str, rig, out: Path, budget: str, train_range: str, progress: bool,
             overrides: tuple[str, ...] = ()) -> str:
     """``esac_retrained=PATH`` of the ESAC trained for ``rig`` into ``out / name / esac``
-    (reused when finished there); ``overrides``: more ``--set`` entries of its training."""
+    (reused when finished there with the same budget, range and overrides, as its
+    ``bench_key.json`` records; trained again otherwise); ``overrides``: more ``--set`` entries
+    of its training."""
+    import json
+
     from agents import training
 
     run = out / name / "esac"
+    key = {"budget": budget, "train_range": train_range, "overrides": list(overrides)}
+    kept = run / "bench_key.json"
     model = training.model_path(run) if run.is_dir() else None
+    if model is not None and (not kept.is_file() or json.loads(kept.read_text()) != key):
+        model = None  # trained with other options (or unknown ones): not this request's
     if model is None:
         over = [] if train_range == "preset" else [
             f"env.conditions.{k}=[{lo!r}, {hi!r}]" for k, (lo, hi) in points_range().items()]
         training.train("esac", run, budget=budget, rig=rig, overrides=[*over, *overrides],
                        progress=progress, force=(run / training.RUN_FILE).is_file())
         model = training.model_path(run)
+        kept.write_text(json.dumps(key))
     return f"esac_retrained={model}"
 
 

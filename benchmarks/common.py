@@ -194,15 +194,18 @@ def versions():
          "scipy": scipy.__version__, "llvmlite": __import__("llvmlite").__version__}
     import hashlib
     h = hashlib.sha256()
-    for f in sorted((ROOT / "pneugym").rglob("*.py")):
+    # the figures follow the policies and their configurations as well as the plant
+    for f in sorted(f for d in ("pneugym", "agents", "configs") for f in (ROOT / d).rglob("*")
+                    if f.suffix in (".py", ".yaml", ".json") and "__pycache__" not in f.parts):
         h.update(str(f.relative_to(ROOT)).encode())
         h.update(f.read_bytes())
-    v["pneugym_source_sha256"] = h.hexdigest()[:16]
+    v["pneugym_source_sha256"] = h.hexdigest()[:16]  # (pneugym/, agents/ and configs/)
     v["pneugym_path"] = str(Path(pneugym.__file__).resolve().parent)
     try:
         v["git_commit"] = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                                          text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "pneugym"], cwd=ROOT,
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                                "pneugym", "agents", "configs"], cwd=ROOT,
                                capture_output=True, text=True, check=True).stdout.strip()
         v["pneugym_dirty"] = bool(dirty)
     except (OSError, subprocess.CalledProcessError):

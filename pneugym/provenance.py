@@ -30,7 +30,19 @@ def git_commit() -> str | None:
         return None
 
 
+def git_dirty() -> bool | None:
+    """Whether the working tree differs from the commit (tracked files changed): a result made
+    so is not reproduced by ``git_commit`` alone. None outside a git checkout."""
+    try:
+        root = Path(__file__).resolve().parent.parent
+        out = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                             capture_output=True, text=True, timeout=5)
+        return bool(out.stdout.strip()) if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def provenance() -> dict:
-    return {"versions": versions(), "git_commit": git_commit(),
+    return {"versions": versions(), "git_commit": git_commit(), "git_dirty": git_dirty(),
             "machine": {"platform": platform.platform(), "processor": platform.machine()},
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat()}

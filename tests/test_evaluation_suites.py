@@ -64,4 +64,8 @@ def test_the_retraining_benchmark_trains_over_the_operating_points(tmp_path, mon
         raise AssertionError("trained again")
 
     monkeypatch.setattr(training, "train", never)
-    assert bench_transfer.retrain("heldout-1", rig, tmp_path, "quick", "points", False) == spec
+    assert bench_transfer.retrain("heldout-1", rig, tmp_path, "quick", "points", False,
+                                  tiny) == spec
+    for other in (("default", "points", tiny), ("quick", "preset", tiny), ("quick", "points", ())):
+        with pytest.raises(AssertionError, match="trained again"):  # other options: not reused
+            bench_transfer.retrain("heldout-1", rig, tmp_path, other[0], other[1], False, other[2])
