@@ -18,7 +18,7 @@ from typing import Sequence
 
 #: command -> (module with ``main(argv)``, one-line summary)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "evaluate": ("agents.evaluation.cli", "benchmark policies on the nominal and robustness suites"),
+    "evaluate": ("agents.evaluation.cli", "benchmark policies on the nominal, robustness and transfer suites"),
     "train": ("agents.training.cli", "train a learned policy (PPO, DQN or ESAC) into a run folder"),
     "discrepancy": ("pneugym.discrepancy.__main__",
                     "find, name and fit the effect that separates measured runs from the model"),

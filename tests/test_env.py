@@ -578,3 +578,12 @@ def test_a_reversible_cut_is_not_a_stall_and_a_long_valve_delay_is_refused():
                     conditions={"valve_delay_scale": (1.5, 1.5)})
     with pytest.raises(ValueError, match="valve queues"):
         env.reset(seed=0)
+
+
+def test_an_unknown_constructor_option_is_named_with_the_nearest_one():
+    from pneugym.envs import CutOffCycleEnv
+    from pneugym.envs.cutoff import CutOffVectorEnv
+
+    for make in (CutOffEnv, CutOffVectorEnv, CutOffCycleEnv):
+        with pytest.raises(ValueError, match="did you mean 'conditions'"):
+            make(condition={})

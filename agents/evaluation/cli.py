@@ -1,7 +1,7 @@
 """Benchmark cut-off policies on the pneugym suites and write results.json, results.csv and plots.
 
 examples:
-  pneugym evaluate       # baselines + trained ESAC, PPO, DQN (trained on demand), both suites
+  pneugym evaluate       # baselines + ESAC, PPO, family ESAC (trained on demand), three suites
   pneugym evaluate --policies conventional gaslaw oracle ppo=runs/ppo/model.zip \\
       --suite robustness --episodes 3 --seed 1000000 --out results
   pneugym evaluate --policies gaslaw esac=runs/esac esac10=runs/esac:max_time_increase=0.1

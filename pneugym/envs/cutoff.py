@@ -633,7 +633,8 @@ class CutOffEnv(_CutOffCore, gym.Env):
     def __init__(self, render_mode: str | None = None, **config: Any):
         unknown = set(config) - set(_DEFAULTS)
         if unknown:
-            raise ValueError(f"unknown CutOffEnv option(s) {sorted(unknown)}; "
+            raise ValueError(f"unknown CutOffEnv option(s) {sorted(unknown)}"
+                             f"{did_you_mean(sorted(unknown)[0], _DEFAULTS)}; "
                              f"known: {sorted(_DEFAULTS)}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode = {render_mode!r}: only 'rgb_array' is supported")
@@ -725,7 +726,9 @@ class CutOffVectorEnv(_CutOffCore, VectorEnv):
                  autoreset: bool = True, **config: Any):
         unknown = set(config) - set(_DEFAULTS)
         if unknown:
-            raise ValueError(f"unknown CutOffVectorEnv option(s) {sorted(unknown)}")
+            raise ValueError(f"unknown CutOffVectorEnv option(s) {sorted(unknown)}"
+                             f"{did_you_mean(sorted(unknown)[0], _DEFAULTS)}; known: "
+                             f"{sorted(_DEFAULTS)}")
         if not (isinstance(num_envs, (int, np.integer)) and not isinstance(num_envs, bool)
                 and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")

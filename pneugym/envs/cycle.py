@@ -41,6 +41,7 @@ from ..physics import layout as L
 from ..physics import system as K
 from ..physics.energy import saving_ratio
 from ..plant import SimulationError
+from ..params import did_you_mean
 from ..cycle import CARRIED, check_cycle_rig
 from ..units import compressor_energy_kwh, free_air_nl
 from .conditions import as_conditions
@@ -65,7 +66,8 @@ class CutOffCycleEnv(gym.Env):
     def __init__(self, dwell_s: float = 0.2, **config: Any):
         unknown = set(config) - set(_DEFAULTS)
         if unknown:
-            raise ValueError(f"unknown CutOffCycleEnv option(s) {sorted(unknown)}; known: "
+            raise ValueError(f"unknown CutOffCycleEnv option(s) {sorted(unknown)}"
+                             f"{did_you_mean(sorted(unknown)[0], [*_DEFAULTS, 'dwell_s'])}; known: "
                              f"{sorted(_DEFAULTS) + ['dwell_s']}")
         ok = isinstance(dwell_s, (int, float)) and not isinstance(dwell_s, bool)
         if not (ok and math.isfinite(dwell_s) and 0.0 <= dwell_s <= 60.0):
