@@ -196,7 +196,9 @@ def test_mpc_with_the_prior_hedges_and_completes():
     alone = _episodes(ModelPredictivePolicy.for_env(probe, prior_members=0), cond, cfg)
     assert hedged["completed"].all() and not hedged["stalled"].any()
     assert hedged["saving_ratio"][0] > 0.3 and hedged["objective"][0] > -0.8
-    assert hedged["cutoff_time_s"][0] >= alone["cutoff_time_s"][0]
+    # the draws of what the stroke cannot show move the cut later (1.025 s against 0.95 s)
+    assert len(ModelPredictivePolicy.for_env(probe).members) == 6
+    assert hedged["cutoff_time_s"][0] > alone["cutoff_time_s"][0] + 0.02
 
 
 def test_hidden_members_and_changes():

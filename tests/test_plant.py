@@ -121,7 +121,7 @@ def test_air_mass_in_is_the_integral_of_the_supply_flow(conventional):
     tr = conventional.traj
     integral = np.trapezoid(tr["mdot_supply"], tr["t"]) if hasattr(np, "trapezoid") else np.trapz(
         tr["mdot_supply"], tr["t"])
-    assert integral == pytest.approx(tr["air_mass_in"][-1], rel=0.02)
+    assert integral == pytest.approx(tr["air_mass_in"][-1], rel=5e-4)  # (trapezoid at 1 kHz: 1e-5)
     assert np.all(np.diff(tr["air_mass_in"]) >= 0)
 
 
@@ -167,7 +167,7 @@ def test_piston_stays_put_until_the_net_force_exceeds_static_friction(convention
     assert f[0] < 0 < k_force
     assert np.all(tr["x"][:k_force] == 0.0), "held while |F| <= Fs"
     assert k_move >= k_force
-    assert k_move - k_force <= 2, "breaks away as soon as F > Fs"
+    assert k_move - k_force <= 1, "breaks away as soon as F > Fs (the force rises ~20 N per sample)"
 
 
 def test_huge_static_friction_never_moves():

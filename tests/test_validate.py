@@ -15,6 +15,12 @@ def test_report_json_schema_and_analytic_rows(tmp_path):
         assert {"quantity", "simulated", "reference", "tolerance", "unit", "passed"} <= set(r)
     analytic = [r for r in rows if r["group"] == "analytic"]
     assert len(analytic) >= 7 and all(r["passed"] for r in analytic)
+    # the thesis's published figures (stroke times, savings, breakaway, the line experiment) and
+    # the standard cylinders' rows: each one with a tolerance passes (the others are for
+    # information)
+    thesis = [r for r in rows if r["group"].startswith("thesis")]
+    assert sum(r["passed"] is True for r in thesis) >= 10
+    assert not [r["quantity"] for r in rows if r["passed"] is False]
     assert {"versions", "git_commit"} <= set(rep["provenance"])
     for name in ("thesis_strokes.png", "line_experiment.png", "convergence.png", "analytic.png"):
         assert (tmp_path / name).stat().st_size > 10_000
