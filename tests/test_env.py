@@ -574,10 +574,14 @@ def test_a_reversible_cut_is_not_a_stall_and_a_long_valve_delay_is_refused():
         if term or trunc:
             break
     assert info["completed"] and not info["stalled"] and info["time_s"] > 0.3
-    env = CutOffEnv(reversible=True, control_period_s=0.001,
-                    conditions={"valve_delay_scale": (1.5, 1.5)})
-    with pytest.raises(ValueError, match="valve queues"):
-        env.reset(seed=0)
+    with pytest.raises(ValueError, match="valve queues"):  # refused when made, not mid-run
+        CutOffEnv(reversible=True, control_period_s=0.001,
+                  conditions={"valve_delay_scale": (1.5, 1.5)})
+    with pytest.raises(ValueError, match="up to 300 ms"):  # the family draws up to 0.3 s
+        CutOffEnv(reversible=True, preset="family", control_period_s=0.004)
+    env = CutOffEnv(reversible=True, preset="family")  # 0.3 s / 5 ms fits
+    with pytest.raises(ValueError, match="valve queues"):  # conditions told at reset
+        env.reset(seed=0, options={"conditions": {"valve_delay_scale": 2.0}})
 
 
 def test_an_unknown_constructor_option_is_named_with_the_nearest_one():
