@@ -265,7 +265,8 @@ def calibrate(supplies_bar: Sequence[float] = (1.5, 2.0, 2.5, 3.0, 4.0, 5.0),
 
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],
+        description="Calibrate the thesis's Gas-Law cut-off rule: K per supply pressure by a "
+                    "sweep on the rig (the return of each K), written as a K table.",
         epilog="examples:\n  pneugym gaslaw                       # writes agents/gaslaw_k.json\n"
                "  pneugym gaslaw --out /tmp/k.json --plot /tmp/k.png --seed 1\n"
                "  pneugym gaslaw --rig my_rig.yaml --out runs/my_rig/gaslaw_k.json "
@@ -273,7 +274,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(CALIBRATION_FILE), metavar="FILE",
                     help="calibration JSON (default: the K table the Gas-Law policy reads)")
-    ap.add_argument("--plot", default="results/gaslaw_k.png", help="PNG of return vs K")
+    ap.add_argument("--plot", default=None,
+                    help="PNG of return vs K (default results/gaslaw_k.png for the thesis rig, "
+                         "beside --out with --rig)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the sweep's episodes (0)")
     ap.add_argument("--rig", default=None, metavar="FILE",
                     help="calibrate K for this rig (a rig file; default the thesis rig); give "
@@ -293,6 +296,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                 raise ValueError(f"--rig calibrates K for another rig: give --out FILE (the "
                                  f"default {CALIBRATION_FILE} is the shipped thesis-rig table)")
         check_output_file(args.out, "--out")
+        if args.plot is None:  # (another rig's plot never replaces the thesis rig's)
+            args.plot = ("results/gaslaw_k.png" if args.rig is None
+                         else str(Path(args.out).with_suffix(".png")))
         if args.plot:
             check_output_file(args.plot, "--plot")
     except ValueError as exc:

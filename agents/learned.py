@@ -173,10 +173,15 @@ def check_layout(model: Mapping[str, Any], env: Mapping[str, Any], source: str =
         diffs.append(f"history {hm} (model) vs {he} (env); a model stacks single samples itself "
                      f"only in an environment with history=1")
     if diffs:
+        stroke = [d for d in diffs if d.startswith("feature 'position'")]
+        hint = (" The position is scaled by the rig's stroke: this model runs on rigs of its "
+                "own stroke only; retrain it for this rig (pneugym train --rig FILE), or use "
+                "mpc-rig (no training)." if stroke else
+                " Build the environment with the options recorded in the model's run.json "
+                "(env_config), or retrain.")
         raise LayoutMismatchError(
             f"{source} was trained on a different observation layout than this environment's: "
-            + "; ".join(diffs) + ". Build the environment with the options recorded in the "
-            "model's run.json (env_config), or retrain.")
+            + "; ".join(diffs) + "." + hint)
     return hm if hm != he else 0
 
 

@@ -179,8 +179,10 @@ class CylinderParams:
                f"< half the stroke ({0.5 * self.stroke_m})")
         _check(self, "cushion_factor_drive", self.cushion_factor_drive <= 1.0, "in (0, 1]")
         _check(self, "cushion_factor_exhaust", self.cushion_factor_exhaust <= 1.0, "in (0, 1]")
-        _plausible(self, "bore_m", 1.0, "mm given as m? (a 125 mm bore is 0.125 m)")
-        _plausible(self, "stroke_m", 10.0, "mm given as m? (a 180 mm stroke is 0.18 m)")
+        _plausible(self, "bore_m", 1.0, f"mm given as m? (a {self.bore_m:g} mm bore is "
+                                        f"{self.bore_m / 1000:g} m)")
+        _plausible(self, "stroke_m", 10.0, f"mm given as m? (a {self.stroke_m:g} mm stroke is "
+                                           f"{self.stroke_m / 1000:g} m)")
         _plausible(self, "dead_volume_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
         _plausible(self, "port_area_m2", 0.01, "mm² given as m²? (1 mm² = 1e-6 m²)")
         _plausible(self, "moving_mass_extra_kg", 1e4, "grams given as kg?")

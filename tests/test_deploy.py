@@ -239,6 +239,22 @@ def test_replay_reports_the_cut_and_its_predicted_saving(measured, tmp_path):
     assert (tmp_path / "replay.png").stat().st_size > 10_000
 
 
+def test_replay_refuses_runs_of_another_cylinder_and_two_policies(measured, tmp_path, capsys):
+    """Runs of a 300 mm stroke replayed on the thesis rig's controller (an end-stroke rule would
+    cut mid-stroke and report a saving): refused, naming --rig; so is a second --policy (only
+    the last one ran), and a refused model is exit status 2, not a traceback."""
+    from pneugym.cli import main
+    from pneugym.data import simulate_run, write_run
+
+    longer = RigParams().with_(cylinder={"stroke_m": 0.3})
+    write_run(simulate_run(longer, t_end=2.0, noise="default", name="long"), tmp_path / "long")
+    assert main(["replay", str(tmp_path / "long.csv"), "--policy", "endstroke"]) == 2
+    assert "--rig" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["replay", str(measured), "--policy", "gaslaw", "--policy", "endstroke"])
+    assert main(["replay", str(measured), "--policy", str(tmp_path / "none.pt")]) == 2
+
+
 def test_replay_decides_as_fed_live(measured):
     """Replaying a run is feeding the controller its samples at the period: the same cut as a
     controller fed by hand."""
@@ -377,8 +393,8 @@ def test_pneugym_export_writes_a_controller(runs, tmp_path, capsys):
     assert "onnx : max |difference| from torch" in out and "of the tolerance" in out
     assert {p.name for p in (tmp_path / "x").iterdir()} == {"model.onnx", "weights.npz",
                                                             "controller.json"}
-    with pytest.raises(ValueError, match="has no neural network"):
-        main(["export", "gaslaw", "--out", str(tmp_path / "y")])
+    assert main(["export", "gaslaw", "--out", str(tmp_path / "y")]) == 2  # named, no traceback
+    assert "has no neural network" in capsys.readouterr().err
 
 
 def test_a_retract_rig_is_refused():

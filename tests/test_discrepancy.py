@@ -566,6 +566,8 @@ def test_report_files(leak_case):
     assert rig.effects.active == ("leakage",)
     md = (out / "report.md").read_text()
     assert "Named effect: `leakage`" in md and "trapped air after cut-off" in md
+    assert "| valve.exhaust_area_m2 (x stated) |" in md  # a factor, not an area in m²
+    assert "| valve.discharge_coefficient |" in md
     for name in ("overlays.png", "residuals.png", "candidates.png"):
         assert (out / name).stat().st_size > 10_000
 

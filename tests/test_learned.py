@@ -229,3 +229,16 @@ def test_decisions_are_checked():
     from agents.learned import SB3Policy
     with pytest.raises(ValueError, match=r"the decision value is nan for the quantile rule"):
         SB3Policy(lay, ppo, lay, decision={"rule": "quantile", "value": float("nan")})
+
+
+def test_a_model_of_another_stroke_is_refused_with_what_to_do():
+    """The position is scaled by the stroke: a model of the 180 mm rig is refused on a 300 mm
+    one, and the message says to retrain for the rig or use mpc-rig (not to rebuild the env)."""
+    from agents.learned import LayoutMismatchError, check_layout
+    from pneugym.envs.cutoff import CutOffEnv
+    from pneugym.params import RigParams
+
+    model = CutOffEnv().observation_layout()
+    env = CutOffEnv(rig=RigParams().with_(cylinder={"stroke_m": 0.3})).observation_layout()
+    with pytest.raises(LayoutMismatchError, match="retrain it for this rig .*mpc-rig"):
+        check_layout(model, env)

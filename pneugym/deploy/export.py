@@ -33,6 +33,7 @@ import hashlib
 import io
 import json
 import os
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, Callable, Mapping
@@ -731,13 +732,17 @@ def parser():
     return p
 
 
-def main(argv: Any = None) -> dict[str, Path]:
+def main(argv: Any = None) -> dict[str, Path] | int:
     """``pneugym export``: load the model as a controller would, export it, print the check."""
     from .controller import Controller
 
     args = parser().parse_args(argv)
-    policy = Controller.load(args.source, rig=args.rig, runs=args.runs).policy
-    paths = export(policy, args.out)
+    try:
+        policy = Controller.load(args.source, rig=args.rig, runs=args.runs).policy
+        paths = export(policy, args.out)
+    except (ValueError, OSError) as exc:  # a refused model or rig: named, exit status 2
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     check = json.loads(paths["controller"].read_text())["check"]
     for name in ("onnx", "numpy"):
         print(f"{name:5s}: max |difference| from torch {check[name]['max_abs']:.2g} "

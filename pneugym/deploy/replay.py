@@ -16,6 +16,7 @@ import argparse
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -84,6 +85,11 @@ def replay_run(controller: Controller, run: Any, rig: RigParams | None = None,
         raise ValueError(f"{run.name}: sampled every {run.sample_dt_s * 1e3:.3g} ms, coarser than "
                          f"the controller's period ({p * 1e3:g} ms): it cannot be replayed")
     stated = run.rig(controller.rig)  # the run's own rig section over the controller's rig
+    mine, theirs = _geometry(controller.rig), _geometry(stated)
+    if mine != theirs:  # (an end-stroke rule would cut mid-stroke on a longer cylinder)
+        raise ValueError(f"{run.name}: the run states a cylinder of bore, rod, stroke "
+                         f"{theirs} m, the controller's rig {mine} m: load the controller for "
+                         f"the rig the runs were measured on (--rig FILE)")
     if stated.stroke_direction != "extend":
         raise ValueError(f"{run.name}: a {stated.stroke_direction} stroke; the controller runs "
                          f"extension strokes")
@@ -140,6 +146,11 @@ def _measured(items: Any, base: RigParams) -> list[Any]:
     loaded = [r for r in items if isinstance(r, MeasuredRun)]
     paths = [r for r in items if not isinstance(r, MeasuredRun)]
     return loaded + (read_runs(paths, base=base) if paths else [])
+
+
+def _geometry(rig: RigParams) -> tuple[float, float, float]:
+    c = rig.cylinder
+    return (c.bore_m, c.rod_m, c.stroke_m)
 
 
 def replay(controller: Controller, runs: Any, rig: Any = None,
@@ -222,9 +233,9 @@ def parser() -> argparse.ArgumentParser:
                "--commissioning commissioning/ --model-rig report/updated_model.json",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", help="measured runs: folders or NAME.csv/NAME.json files")
-    p.add_argument("--policy", default="gaslaw",
-                   help="a baseline, a learned policy's name under --runs-dir, a run directory "
-                        "or a model file (default gaslaw)")
+    p.add_argument("--policy", action="append", default=None,
+                   help="a baseline, a learned policy's name under --runs, a run directory "
+                        "or a model file (default gaslaw; one per replay)")
     p.add_argument("--rig", default=None, help="rig file of the rig the runs were measured on")
     p.add_argument("--model-rig", default=None,
                    help="rig file the predictions run on (default --rig), e.g. the discrepancy "
@@ -233,16 +244,26 @@ def parser() -> argparse.ArgumentParser:
                    help="commissioning strokes (extend, cut off on arrival, held 1.5 s), one "
                         "per operating point of the runs, for a policy that reads one "
                         "(esac-family, ppo-family)")
-    p.add_argument("--runs-dir", default="runs", help="where learned policies' runs are")
+    p.add_argument("--runs", "--runs-dir", dest="runs_dir", default="runs",
+                   help="where learned policies' runs are (as evaluate's and export's --runs)")
     p.add_argument("--out", default=None, help="folder for replay.json/.csv/.png")
     return p
 
 
-def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    args = parser().parse_args(argv)
-    ctl = Controller.load(args.policy, rig=args.rig, runs=args.runs_dir)
-    results = replay(ctl, list(args.runs), rig=args.model_rig,
-                     commissioning=list(args.commissioning))
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]] | int:
+    ap = parser()
+    args = ap.parse_args(argv)
+    if args.policy and len(args.policy) > 1:
+        ap.error(f"--policy given {len(args.policy)} times ({', '.join(args.policy)}): one "
+                 f"controller per replay")
+    args.policy = (args.policy or ["gaslaw"])[0]
+    try:
+        ctl = Controller.load(args.policy, rig=args.rig, runs=args.runs_dir)
+        results = replay(ctl, list(args.runs), rig=args.model_rig,
+                         commissioning=list(args.commissioning))
+    except (ValueError, OSError) as exc:  # a refused model, rig or run: named, exit status 2
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     for r in results:
         def fmt(o):
             if o is None:
@@ -255,8 +276,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         print(f"{r['run']}: cuts at {cut}{flag}: {fmt(r['predicted'])} | run's own cut {own}: "
               f"{fmt(r['predicted_recorded'])}")
     if args.out:
-        write_outputs(results, Path(args.out), ctl.source)
-        print(f"wrote {args.out}/replay.json, replay.csv, replay.png")
+        out = Path(args.out)
+        write_outputs(results, out, ctl.source)
+        print(f"wrote {out / 'replay.json'}, replay.csv, replay.png")
     return results
 
 

@@ -77,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
                          "leakage, heat_transfer, both or none; one report folder per record in --out "
                          "(of the options, only --alpha, --min-improvement, --seed and --no-plots apply)")
+    ap.add_argument("--rig", default=None, metavar="FILE",
+                    help="rig file of the rig the runs were measured on: what their JSON rig "
+                         "sections leave out (default the thesis rig's values)")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     ap.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
                     help="no progress bar")
@@ -117,7 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # the workflow reads the runs itself: a long run's full arrays are dropped as soon as
         # it has been cut to its informative window
-        d.fit(a.paths)
+        from ..rigfile import as_rig
+
+        d.fit(a.paths, as_rig(a.rig, "--rig") if a.rig else None)
     except MeasurementFormatError as exc:  # names the file, row or key
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -138,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: the report could not be written to {out}: {exc}", file=sys.stderr)
         return 2
     print(d.summary())
-    print(f"report: {path} (and report.md, plots, updated_model.json) in "
+    also = "report.md, updated_model.json" + ("" if a.no_plots else ", plots")
+    print(f"report: {path} (and {also}) in "
           f"{time.perf_counter() - t0:.1f} s")
     return 0
 

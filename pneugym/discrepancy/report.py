@@ -298,8 +298,10 @@ def markdown(rep: dict[str, Any]) -> str:
     L += ["", "## Fitted parameters", "",
           "Factors (`x stated`) multiply the value each run's JSON states.", "",
           "| parameter | as given | calibrated | updated model |", "|---|---|---|---|"]
+    factors = set(rep.get("relative_params", []))
     for k, v in rep["fitted_params"].items():
-        L.append(f"| {k} | {_fmt(rep['nominal_params'].get(k))} | {_fmt(rep['calibrated_params'].get(k))} | {_fmt(v)} |")
+        name = f"{k} (x stated)" if k in factors else k
+        L.append(f"| {name} | {_fmt(rep['nominal_params'].get(k))} | {_fmt(rep['calibrated_params'].get(k))} | {_fmt(v)} |")
     L += ["", (f"Updated model (load with `RigParams.from_dict(json.load(open(path)))`): "
                f"`{rep['updated_model']}`"), ""]
     if rep.get("plots"):
