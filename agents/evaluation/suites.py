@@ -104,7 +104,7 @@ def held_out_draws(preset: str, n: int, stream: int, base: RigParams) -> list[tu
     ``[EVAL_SEED, stream]`` (seeds no training uses), as ``rig_changes`` to ``base``; a draw is
     redrawn until every :data:`TRANSFER_POINTS` completes within the family's time bound."""
     from pneugym.envs.conditions import PRESETS
-    from pneugym.envs.family import StrokeRefused, checked_substep
+    from pneugym.envs.family import StrokeRefused, draw_substep
 
     family = PRESETS[preset].family
     rng = np.random.default_rng([EVAL_SEED, stream])
@@ -122,13 +122,7 @@ def held_out_draws(preset: str, n: int, stream: int, base: RigParams) -> list[tu
             for b, m in TRANSFER_POINTS:
                 c = Conditions(supply_pressure_gauge_pa=b * 1e5, load_mass_kg=m,
                                rig_changes=changes)
-                try:
-                    rig = c.rig(base)
-                except ValueError as exc:  # a real error: the base or the ranges, not the draw
-                    raise ValueError(f"the {preset} family draws a rig the plant refuses on "
-                                     f"this base: {exc}") from exc
-                dts.append(checked_substep(rig, c.dip, family.max_conventional_time_s,
-                                           family.max_conventional_sticks))
+                dts.append(draw_substep(c, base, family))
         except StrokeRefused:
             continue
         if any(dts):

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..params import RigParams, _check, _finite, _nonneg, _positive, did_you_mean
-from .family import RigFamily, StrokeRefused, apply_changes, check_changes, checked_substep
+from .family import RigFamily, StrokeRefused, apply_changes, check_changes, draw_substep
 
 
 @dataclass(frozen=True)
@@ -174,13 +174,7 @@ class ConditionSpace:
             changes = self.family.sample(rng, base)
             cond = dataclasses.replace(cond, rig_changes=changes)
             try:
-                rig = cond.rig(base)
-            except ValueError as exc:  # a real error: the base or the ranges, not this draw
-                raise ValueError(f"the rig family draws a rig the plant refuses on this base: {exc}"
-                                 ) from exc
-            try:
-                dt = checked_substep(rig, cond.dip, self.family.max_conventional_time_s,
-                                     self.family.max_conventional_sticks)
+                dt = draw_substep(cond, base, self.family)
             except StrokeRefused:
                 continue
             if dt is not None:  # the plant needed a smaller substep: every episode takes it

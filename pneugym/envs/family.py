@@ -97,6 +97,19 @@ def checked_substep(rig: RigParams, dip: tuple[float, float, float], t_max_s: fl
     return None if plant.dt_s == dt0 else float(plant.dt_s)
 
 
+def draw_substep(cond: Any, base: RigParams, family: "RigFamily") -> float | None:
+    """:func:`checked_substep` of a family draw's conditions ``cond`` on ``base``: raises
+    :class:`StrokeRefused` for a draw to redraw, a ``ValueError`` saying so for a rig the plant
+    refuses (the base or the ranges are wrong, not the draw)."""
+    try:
+        rig = cond.rig(base)
+    except ValueError as exc:
+        raise ValueError(f"the rig family draws a rig the plant refuses on this base: {exc}"
+                         ) from exc
+    return checked_substep(rig, cond.dip, family.max_conventional_time_s,
+                           family.max_conventional_sticks)
+
+
 def check_changes(changes: Any, what: str = "rig_changes") -> tuple[Change, ...]:
     """``changes`` as a sorted tuple of ``(dotted field, value)`` pairs of :data:`CHANGEABLE`
     fields (a mapping or pairs, e.g. from JSON, are accepted); anything else is refused."""
@@ -338,4 +351,4 @@ _DRAWS = ("v0", "port", "cl", "cfd", "cfe", "ramp", "len", "dia", "p_lumped", "v
 #: the uniforms of the cylinder's design and mounting, drawn after those (only when on)
 _CYLINDER_DRAWS = ("p_single", "angle", "p_incl")
 
-__all__ = ["RigFamily", "StrokeRefused", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]
+__all__ = ["RigFamily", "StrokeRefused", "draw_substep", "CHANGEABLE", "FAMILY_FIELDS", "apply_changes", "check_changes", "checked_substep"]
