@@ -21,7 +21,7 @@ contextual bandit, every draw labelling every cut; the learning problem a model-
 meets with one cut per episode). Figures: the pooled oracle fraction (mean return over the
 draws, against the grid's best and never cutting) on ``--val-seed`` draws (the choices of this
 script, the network and its loss, were made on them) and on ``--held-out-seed`` draws (those of
-``bench_mpc.py``'s first held-out set, where ``mpc-rig`` reaches 0.93-0.95), for nested
+``bench_mpc.py``'s first held-out set, where ``mpc-rig`` keeps 0.845 of the first 40), for nested
 training sets of ``--sizes`` draws and ``--fit-seeds`` network seeds; then the observed network
 on the whole training set on the transfer suite's episodes (against the suite oracle's
 search; returns noise-free, so within a few thousandths of ``pneugym evaluate``'s).
@@ -135,12 +135,15 @@ def score_draws(conds: Sequence[Any], seed: int, grid: Sequence[float], workers:
                 desc: str = "draws", chunk: int = 64, progress: bool = True,
                 ray_address: str | None = None) -> dict[str, np.ndarray]:
     """:func:`score_chunk` over ``conds`` in chunks of ``chunk`` draws
-    (:func:`pneugym.parallel.run_tasks`: ``workers`` processes or Ray); chunk ``k`` with noise
-    seed ``seed + k``, so the numbers do not depend on where the chunks run."""
+    (:func:`pneugym.parallel.run_tasks`: ``workers`` processes or Ray); draw ``j`` with noise
+    seed ``seed + j`` (the vector environment seeds its sub-environments in turn from a chunk's
+    seed), so the numbers do not depend on where the chunks run. (The sensor noise touches only
+    the observation's sensor samples, which the networks do not read; the returns are scored
+    without it.)"""
     from pneugym.parallel import run_tasks
 
-    tasks = [{"conds": list(conds[i:i + chunk]), "seed": seed + k, "grid": tuple(grid)}
-             for k, i in enumerate(range(0, len(conds), chunk))]
+    tasks = [{"conds": list(conds[i:i + chunk]), "seed": seed + i, "grid": tuple(grid)}
+             for i in range(0, len(conds), chunk)]
     out = run_tasks(score_chunk, tasks, workers, ray_address, progress=progress,
                     desc=f"{desc} ({chunk} draws a task)",
                     pythonpath=[str(Path(__file__).resolve().parent)])
@@ -158,12 +161,16 @@ def fraction_targets(R: np.ndarray, RC: np.ndarray) -> np.ndarray:
 def cached(out: Path, name: str, conds: Sequence[Any], seed: int, workers: int,
            progress: bool, ray_address: str | None) -> dict[str, np.ndarray]:
     """:func:`score_draws` of ``conds``, kept in ``out`` (``scores-*.npz``) under a key of the
-    conditions, the noise seed, the grid and the ``pneugym`` sources, and reused from there."""
+    conditions, the noise seed, the grid, the environment's options and the sources of
+    ``pneugym``, ``agents``, ``configs`` and this script, and reused from there."""
     import hashlib
 
-    from agents.esac.data import source_hash
+    from common import versions
 
-    key = hashlib.sha256(json.dumps([repr(list(conds)), seed, GRID, source_hash()]).encode())
+    key = hashlib.sha256(json.dumps([
+        repr(list(conds)), seed, GRID, repr(sorted(env_config().items())),
+        versions()["pneugym_source_sha256"],
+        hashlib.sha256(Path(__file__).read_bytes()).hexdigest()]).encode())
     path = out / f"scores-{name}-{key.hexdigest()[:12]}.npz"
     if path.is_file():
         with np.load(path) as z:
@@ -310,6 +317,7 @@ def run(args) -> dict:
     eps = suite_episodes("transfer", args.transfer_episodes, EVAL_SEED)
     suite = transfer_scores(eps, args, EVAL_SEED, out) if eps else None
     curve = []
+    full_nets = {}  # the observed networks on every training draw, for the transfer suite
     logs = log_columns(data["train"]["T"])
     for kind in ("observed", "truth"):
         for n in sorted(set(args.sizes)):
@@ -318,6 +326,8 @@ def run(args) -> dict:
             for s in range(args.fit_seeds):
                 net = fit(inputs(kind, sub, cols, logs), fraction_targets(sub["R"], sub["RC"]),
                           seed=s, epochs=epochs)
+                if kind == "observed" and n == args.draws:
+                    full_nets[s] = net
                 row = {"input": kind, "draws": n, "fit_seed": s}
                 for name in ("validation", "held-out"):
                     d = data[name]
@@ -330,7 +340,7 @@ def run(args) -> dict:
                       f"{row['validation']:.3f}, held-out {row['held-out']:.3f}", flush=True)
     res: dict[str, Any] = {"learning_curve": curve}
     if suite is not None:
-        res["transfer"] = transfer(data["train"], cols, args, *suite)
+        res["transfer"] = transfer(data["train"], cols, args, *suite, nets=full_nets)
     for name, d in data.items():
         best = np.maximum(d["R"].max(1), d["RC"])
         res.setdefault("grid_best_never", {})[name] = {
@@ -368,16 +378,18 @@ def transfer_scores(eps: Sequence[tuple], args, seed: int, out: Path
 
 
 def transfer(train: dict[str, np.ndarray], cols: Sequence[int], args, d: dict[str, np.ndarray],
-             labels: np.ndarray, best: np.ndarray) -> dict[str, Any]:
-    """The observed network on all training draws, on the transfer suite's scored episodes
-    (:func:`transfer_scores`): pooled oracle fraction per network seed, per rig of the first
-    seed, and the grid's own best (how much the grid leaves)."""
+             labels: np.ndarray, best: np.ndarray, nets: dict | None = None) -> dict[str, Any]:
+    """The observed network on all training draws (``nets`` by seed where the learning curve
+    trained it already), on the transfer suite's scored episodes (:func:`transfer_scores`):
+    pooled oracle fraction per network seed, per rig of the first seed, and the grid's own best
+    (how much the grid leaves)."""
     res: dict[str, Any] = {"episodes": len(labels),
                            "grid_best": figures(d["R"], d["RC"], d["R"].argmax(1), best)}
     epochs = epochs_for(len(train["RC"]), args.epochs)
     for s in range(args.fit_seeds):
-        net = fit(inputs("observed", train, cols), fraction_targets(train["R"], train["RC"]),
-                  seed=s, epochs=epochs)
+        net = (nets or {}).get(s) or fit(inputs("observed", train, cols),
+                                         fraction_targets(train["R"], train["RC"]), seed=s,
+                                         epochs=epochs)
         k = net(inputs("observed", d, cols)).argmax(1)
         res.setdefault("observed", []).append(figures(d["R"], d["RC"], k, best))
         if s == 0:

@@ -63,7 +63,7 @@ def test_scores_repeat_and_do_not_depend_on_the_workers(bench):
     assert (a["R"][:, 0] < a["RC"]).all()
 
 
-def test_small_run_writes_the_figures_and_repeats_them(bench, tmp_path):
+def test_small_run_writes_the_figures_and_repeats_them(bench, tmp_path, monkeypatch):
     argv = ["--draws", "32", "--sizes", "16", "32", "--val", "16", "--held-out", "16",
             "--fit-seeds", "1", "--epochs", "2", "--transfer-episodes", "1", "--out",
             str(tmp_path), "--no-progress"]
@@ -81,10 +81,14 @@ def test_small_run_writes_the_figures_and_repeats_them(bench, tmp_path):
     # the grid of cut-off times holds a cut within a few percent of the oracle's on the suite
     assert tr["grid_best"]["oracle_fraction"] > 0.95
     assert saved["config"]["seed"] == 300_000 and "git_commit" in saved["provenance"]
-    # again, from the kept scores: the same numbers
-    again = bench.main(argv)
+    # again, from the kept scores (scoring anew would fail): the same numbers
+    def no_scoring(*a, **k):
+        raise AssertionError("scored again instead of reusing the kept scores")
+
+    monkeypatch.setattr(bench, "score_draws", no_scoring)
+    again = bench.main(argv + ["--transfer-episodes", "0"])  # (the last one counts)
     assert again["learning_curve"] == res["learning_curve"]
-    assert again["transfer"]["observed"] == tr["observed"]
+    assert "transfer" not in again
 
 
 def test_bad_sizes_are_refused(bench, capsys):
