@@ -5,8 +5,8 @@ hidden truth, and how it grows with the number of family draws.
 A diagnosis for issue 12's learned-policy targets, not a policy the package ships. For each
 family draw (``agents.evaluation.suites.family_draws``) it runs the oracle's scoring
 (``OraclePolicy.score_cuts``: the noise-free episode on the jitted plant) at cut-off times on a
-grid of fractions ``--grid`` of the commissioning stroke's time (what the observation states)
-and never cutting. A network (an MLP, mean squared error) learns the return of each grid cut as
+grid of 45 fractions (``GRID``) of the commissioning stroke's time (what the observation
+states) and never cutting. A network (an MLP, mean squared error) learns the return of each grid cut as
 a fraction of the draw's best gain over the conventional stroke, from
 
 - **observed**: what a family policy may read before the stroke: the supply set-point, the rig
@@ -38,6 +38,7 @@ import argparse
 import csv
 import json
 import math
+import operator
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -85,20 +86,14 @@ def truth_features(conds: Sequence[Any]) -> np.ndarray:
     from pneugym.params import RigParams
 
     base = RigParams()
-
-    def value(rig, dotted):
-        obj = rig
-        for part in dotted.split("."):
-            obj = getattr(obj, part)
-        return obj
-
     rows = []
     for c in conds:
         rig = apply_changes(base, c.rig_changes)
         row = []
         for name in FAMILY_FIELDS:
-            v = value(rig, name)
-            row.append(float(v != value(base, name)) if isinstance(v, str) else
+            value = operator.attrgetter(name)  # (a dotted field)
+            v = value(rig)
+            row.append(float(v != value(base)) if isinstance(v, str) else
                        0.0 if v is None else float(v))  # (None: the effect is off)
         dip = [0.0 if v is None else float(v) for v in (c.dip_start_s, c.dip_duration_s,
                                                           c.dip_depth)]  # None: no dip
@@ -371,9 +366,8 @@ def transfer_scores(eps: Sequence[tuple], args, seed: int, out: Path
                args.ray_address)
     env = CutOffVectorEnv(num_envs=1, **env_config())
     oracle = OraclePolicy(env.observation_layout(), env_config=env.config, seed=seed)
-    quiet = [type(c)(**{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
-             for c in conds]
-    best = np.maximum(np.array([r for _, r in oracle.plan_many(quiet)]), d["R"].max(1))
+    # (the oracle searches each episode without its sensor noise, as score_chunk scores it)
+    best = np.maximum(np.array([r for _, r in oracle.plan_many(conds)]), d["R"].max(1))
     return d, labels, best
 
 
