@@ -152,8 +152,7 @@ class OraclePolicy(TimedCutPolicy):
 
         todo = {}
         for c in conditions:
-            todo.setdefault(c.physics_key(), type(c)(
-                **{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0}))
+            todo.setdefault(c.physics_key(), c.noise_free())
         window = float(self.env_config.get("decision_window_s", 0.02))
         ranges = {}
         for key, c in todo.items():

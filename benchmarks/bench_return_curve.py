@@ -115,8 +115,7 @@ def score_chunk(conds: Sequence[Any], seed: int, grid: Sequence[float]) -> dict[
     period = float(layout["control_period_s"])
     tc = ObservationReader(layout)(obs, "comm_stroke_time")
     oracle = OraclePolicy(layout, env_config=env.config, seed=seed)
-    quiet = {i: type(c)(**{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
-             for i, c in enumerate(conds)}
+    quiet = {i: c.noise_free() for i, c in enumerate(conds)}
     steps = [[round(f * t / period) * period for f in grid] for t in tc]
     scores = oracle.score_cuts(quiet, {i: sorted(set(s)) + [math.inf]
                                        for i, s in enumerate(steps)})

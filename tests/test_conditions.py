@@ -44,6 +44,15 @@ def test_conditions_defaults_are_the_nominal_rig():
     assert Conditions(load_mass_kg=11.0).physics_key() != c.physics_key()
 
 
+def test_noise_free_keeps_the_physics_and_drops_only_the_noise():
+    c = Conditions(load_mass_kg=12.0, position_noise_m=3e-5, pressure_noise_pa=400.0,
+                   rig_changes=(("line.length_m", 2.0),))
+    q = c.noise_free()
+    assert (q.position_noise_m, q.pressure_noise_pa) == (0.0, 0.0)
+    assert q.physics_key() == c.physics_key()
+    assert q == Conditions(**{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
+
+
 def test_conditions_rig_scales_friction_and_valve_delay():
     base = RigParams()
     rig = Conditions(supply_pressure_gauge_pa=3e5, load_mass_kg=20.0, friction_scale=1.3,

@@ -80,6 +80,10 @@ class Conditions:
                 self.valve_delay_scale, self.dip_start_s, self.dip_duration_s, self.dip_depth,
                 self.rig_changes)
 
+    def noise_free(self) -> Conditions:
+        """The same conditions without sensor noise (the same :meth:`physics_key`)."""
+        return dataclasses.replace(self, position_noise_m=0.0, pressure_noise_pa=0.0)
+
     def to_dict(self) -> dict[str, Any]:
         """The fields; ``rig_changes`` as a dict (JSON-ready; :func:`as_conditions` takes it
         back)."""

@@ -203,8 +203,7 @@ def references(oracle: Any, conds: list, dwell_s: float = 0.0) -> dict[str, np.n
     from agents.oracle import TimedCutPolicy
     from pneugym.envs.cutoff import CutOffVectorEnv
 
-    clean = [type(c)(**{**c.to_dict(), "position_noise_m": 0.0, "pressure_noise_pa": 0.0})
-             for c in conds]
+    clean = [c.noise_free() for c in conds]
     keys = list(dict.fromkeys(c.physics_key() for c in clean))
     first = {c.physics_key(): c for c in reversed(clean)}
     uniq = [first[k] for k in keys]
