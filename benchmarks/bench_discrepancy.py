@@ -58,7 +58,8 @@ SECTIONS = {"matrix", "real", "runtime"}
 LABELS = EFFECTS + ("none", "ambiguous")
 #: what a row keeps of another round of the same case
 ROUND_KEYS = ("named", "ambiguous", "gap_after", "gap_reduction", "gap_reduction_vs_calibrated",
-              "noise_floor", "candidates", "wall_s", "holdout")
+              "noise_floor", "candidates", "wall_s", "holdout", "form_fits", "line_model",
+              "orifice_model")
 
 
 def run_case(args) -> dict:
