@@ -32,8 +32,9 @@ CARRIED = ((L.Y_MD, L.Y_ME), (L.Y_ME, L.Y_MD), (L.Y_TD, L.Y_TE), (L.Y_TE, L.Y_TD
 def check_cycle_rig(rig: RigParams) -> None:
     """Refuse effects bound to the driving side of one stroke: a cycle swaps the sides."""
     e = rig.effects
-    if e.dead_volume_m3 or e.leak_drive_area_m2:
-        raise ValueError("effects.dead_volume_m3 and effects.leak_drive_area_m2 belong to the "
+    if e.dead_volume_m3 or e.leak_drive_area_m2 or e.leak_drive_laminar_m3:
+        raise ValueError("effects.dead_volume_m3, effects.leak_drive_area_m2 and "
+                         "effects.leak_drive_laminar_m3 belong to the "
                          "driving side of one stroke: a cycle would move them to the other "
                          "chamber at the reversal; give the dead volumes per side in "
                          "CylinderParams (dead_volume_m3, dead_volume_rod_m3) instead")

@@ -337,6 +337,10 @@ class EffectParams:
 
     - ``leak_drive_area_m2``: effective leak area (Cd included) driving chamber -> atmosphere.
     - ``leak_piston_area_m2``: effective leak area across the piston seal (drive <-> exhaust).
+    - ``leak_drive_laminar_m3``: a laminar (capillary, porous) leak driving chamber ->
+      atmosphere, ``K = pi d^4 / (128 l)`` of a pore of diameter ``d`` and length ``l`` [m³]:
+      isothermal Hagen-Poiseuille flow ``q = K (p_d² - p_a²) / (2 mu R T)``, which keeps a long
+      tail near ambient where an orifice empties the chamber in a finite time.
     - ``heat_transfer_time_constant_s``: 0 = isothermal chambers (thesis); > 0 solves the energy
       equation of each chamber with wall heat transfer ``hA = m c_v / tau`` to the wall at ambient.
     - ``stribeck_force_n``, ``stribeck_velocity_m_s``: extra friction at low speed,
@@ -347,6 +351,7 @@ class EffectParams:
 
     leak_drive_area_m2: float = 0.0
     leak_piston_area_m2: float = 0.0
+    leak_drive_laminar_m3: float = 0.0
     heat_transfer_time_constant_s: float = 0.0
     stribeck_force_n: float = 0.0
     stribeck_velocity_m_s: float = 0.01
@@ -355,11 +360,14 @@ class EffectParams:
 
     def __post_init__(self) -> None:
         _finite(self)
-        _nonneg(self, "leak_drive_area_m2", "leak_piston_area_m2", "heat_transfer_time_constant_s",
-                "stribeck_force_n", "sensor_lag_s", "dead_volume_m3")
+        _nonneg(self, "leak_drive_area_m2", "leak_piston_area_m2", "leak_drive_laminar_m3",
+                "heat_transfer_time_constant_s", "stribeck_force_n", "sensor_lag_s",
+                "dead_volume_m3")
         _positive(self, "stribeck_velocity_m_s")
         for name in ("leak_drive_area_m2", "leak_piston_area_m2"):
             _plausible(self, name, 1e-4, "mm² given as m²? (1 mm² = 1e-6 m²)")
+        _plausible(self, "leak_drive_laminar_m3", 1e-9, "pi d^4 / (128 l) in m³: a pore of "
+                   "0.1 mm over 1 mm is 2.5e-15 m³")
         _plausible(self, "sensor_lag_s", 1.0, "ms given as s? (15 ms = 0.015 s)")
         _plausible(self, "heat_transfer_time_constant_s", 1e4, "a time constant in s")
         _plausible(self, "dead_volume_m3", 0.1, "litres or cm³ given as m³? (1 L = 1e-3 m³)")
@@ -369,7 +377,7 @@ class EffectParams:
     def active(self) -> tuple[str, ...]:
         """Names of the effects switched on."""
         on = []
-        if self.leak_drive_area_m2 > 0 or self.leak_piston_area_m2 > 0:
+        if self.leak_drive_area_m2 > 0 or self.leak_piston_area_m2 > 0 or self.leak_drive_laminar_m3 > 0:
             on.append("leakage")
         if self.heat_transfer_time_constant_s > 0:
             on.append("heat_transfer")

@@ -170,6 +170,7 @@ def pack(params: RigParams, dt_s: float = 0.0) -> np.ndarray:
     P[L.P_STRIB_V] = e.stribeck_velocity_m_s
     P[L.P_CDA_LEAK_D] = e.leak_drive_area_m2
     P[L.P_CDA_LEAK_P] = e.leak_piston_area_m2
+    P[L.P_KLAM_LEAK_D] = e.leak_drive_laminar_m3
     P[L.P_TAU_TH] = e.heat_transfer_time_constant_s
     P[L.P_LAG] = e.sensor_lag_s
     P[L.P_LINE_MODEL] = 0.0 if ln.model == "fd" else 1.0
@@ -247,6 +248,10 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     orifice("exhaust", cd * v.exhaust_area_m2, v0e, math.inf)
     orifice("leak drive", e.leak_drive_area_m2, v0d, math.inf)
     orifice("leak piston", e.leak_piston_area_m2, v0d, v0e)
+    if e.leak_drive_laminar_m3 > 0:
+        # q = K (p² - p_a²) / (2 mu R T): dq/dp = K p / (mu R T), lambda = R T dq/dp / V
+        lam = e.leak_drive_laminar_m3 * ps / (g.viscosity_pa_s * v0d)
+        out["laminar leak drive"] = RK3_REAL_LIMIT / lam
     if ln.model == "lumped" and ln.n_cells > 1:
         # the whole orifice chain (valve, joints, port) is implicit (pneugym.physics.chain.
         # implicit_chain) and has no stability limit, but its first IMEX stage is explicit:

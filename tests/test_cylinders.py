@@ -317,7 +317,8 @@ def test_a_cycle_carries_air_and_heat_across_the_reversal():
                                               "leak_piston_area_m2": 1e-7}),
                      cut_extend_s=0.9, dwell_s=0.1)
     assert warm.completed and warm.mass_balance_error < 1e-12
-    for effect in ({"dead_volume_m3": 1e-4}, {"leak_drive_area_m2": 1e-7}):
+    for effect in ({"dead_volume_m3": 1e-4}, {"leak_drive_area_m2": 1e-7},
+                   {"leak_drive_laminar_m3": 1e-15}):
         with pytest.raises(ValueError, match="belong to the driving side of one stroke"):
             run_cycle(thesis_rig(2.5, effects=effect))
 

@@ -90,6 +90,7 @@ BAD_VALUES = [
     # effects
     (EffectParams, "leak_drive_area_m2", -1e-7),
     (EffectParams, "leak_piston_area_m2", -1e-7),
+    (EffectParams, "leak_drive_laminar_m3", -1e-15),
     (EffectParams, "heat_transfer_time_constant_s", -1.0),
     (EffectParams, "stribeck_force_n", -10.0),
     (EffectParams, "stribeck_velocity_m_s", 0.0),
@@ -484,6 +485,7 @@ def test_effects_default_is_all_off():
 @pytest.mark.parametrize("changes,name", [
     ({"leak_drive_area_m2": 1e-8}, "leakage"),
     ({"leak_piston_area_m2": 1e-8}, "leakage"),
+    ({"leak_drive_laminar_m3": 1e-15}, "leakage"),
     ({"heat_transfer_time_constant_s": 0.5}, "heat_transfer"),
     ({"stribeck_force_n": 50.0}, "stribeck_friction"),
     ({"sensor_lag_s": 0.015}, "sensor_lag"),
@@ -600,6 +602,7 @@ def test_numbers_of_any_real_type_are_stored_as_floats():
     ({"valve": {"ramp_s": 10.0}}, r"ramp_s.*ms given as s"),
     ({"effects": {"sensor_lag_s": 20.0}}, r"sensor_lag_s.*ms given as s"),
     ({"effects": {"leak_drive_area_m2": 1.0}}, r"leak_drive_area_m2.*mm² given as m²"),
+    ({"effects": {"leak_drive_laminar_m3": 1e-6}}, r"leak_drive_laminar_m3.*pi d\^4 / \(128 l\)"),
     ({"effects": {"dead_volume_m3": 5.0}}, r"EffectParams.dead_volume_m3.*litres"),
     ({"line": {"tee_volumes": ((0.1, 4.0),)}}, r"tee_volumes\[0\].*cm³ given as m³"),
     ({"gas": {"viscosity_pa_s": 1.81}}, r"viscosity_pa_s"),

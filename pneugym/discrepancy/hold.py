@@ -14,8 +14,11 @@ so a record of unknown volume is fitted on the rig's chamber and the leak is rep
 of chamber (and as an area when the record states its volume).
 
 Parameters: the nominal model has the starting pressure and the closing time; the candidates
-add ``leakage`` (the leak's Cd*A; the air stays at ambient temperature, as in the plant's
-default isothermal chambers), ``heat_transfer`` (air warmer than ambient at closing, settling
+add ``leakage`` (the air stays at ambient temperature, as in the plant's default isothermal
+chambers) through either leak law, the better fit of the two standing for it: an orifice (the
+leak's Cd*A, thesis eqs. 4.1-4.3) or a laminar capillary (its ``K = pi d^4 / (128 l)``,
+Hagen-Poiseuille: the flow of pores and printed layers, with a long tail near ambient),
+``heat_transfer`` (air warmer than ambient at closing, settling
 with a time constant) and, on top of a named one, the other (a leak through which the expanding
 air cools and warms back). The decision uses the checks of
 :class:`~pneugym.discrepancy.Discrepancy`, with the last third of the hold held out: the fit
@@ -55,6 +58,8 @@ MAX_DURATION_S = 3600.0
 MAX_UNIFORM_FACTOR = 10
 #: a larger hold CSV [bytes] is refused
 MAX_HOLD_BYTES = 100_000_000
+#: the leak laws and the model each is fitted as
+LEAK_LAWS = {"orifice": "leakage", "laminar": "leakage_laminar"}
 
 
 @dataclass(frozen=True)
@@ -133,6 +138,9 @@ def _params(name: str, rec: HoldRecord, t_close: float) -> tuple[FitParam, ...]:
     if name == "leakage":
         return (FitParam("effects.leak_drive_area_m2", 0.0, 1e-5, 1e-9, null=0.0, unit="m²",
                          start=(1e-11, 1e-7)),)
+    if name == "leakage_laminar":
+        return (FitParam("effects.leak_drive_laminar_m3", 0.0, 1e-10, 1e-15, null=0.0, unit="m³",
+                         start=(1e-19, 1e-14)),)
     return (FitParam("effects.heat_transfer_time_constant_s", 0.05, 200.0, 1.0, log=True,
                      null=0.0, unit="s", start=(0.5, 30.0)),
             FitParam("hold.warm_k", 0.0, 60.0, 1.0, null=0.0, unit="K", start=(0.5, 10.0)))
@@ -158,16 +166,25 @@ class HoldFit:
 class HoldDiscrepancy:
     """Name what drains a closed chamber: ``leakage``, ``heat_transfer``, both, or ``none``.
 
-    Parameters: ``alpha`` (0.01, divided by the number of candidates), ``min_improvement``
-    (0.1), ``z_min`` (3), as in :class:`~pneugym.discrepancy.Discrepancy`; ``sigma_pa`` the
-    pressure noise (default: estimated from the record's second differences, at least the
-    quantisation step / sqrt(12)); ``seed`` for the random starts."""
+    Parameters: ``alpha`` (0.01, divided by the number of fitted candidates, each leak law
+    counting as one), ``min_improvement`` (0.1), ``z_min`` (3), as in
+    :class:`~pneugym.discrepancy.Discrepancy`; ``sigma_pa`` the pressure noise (default:
+    estimated from the record's second differences, at least the quantisation step /
+    sqrt(12)); ``seed`` for the random starts; ``leak_laws`` the laws a leak is fitted with
+    (:data:`LEAK_LAWS`; the better fit of the held-in part stands for ``leakage``,
+    :attr:`leak_law_`)."""
 
     def __init__(self, alpha: float = 0.01, min_improvement: float = 0.1, z_min: float = 3.0,
-                 sigma_pa: float | None = None, n_starts: int = 2, seed: int = 0):
+                 sigma_pa: float | None = None, n_starts: int = 2, seed: int = 0,
+                 leak_laws: tuple[str, ...] = ("orifice", "laminar")):
         if not (0 < alpha < 1 and 0 <= min_improvement < 1 and z_min >= 0 and n_starts >= 1):
             raise ValueError("HoldDiscrepancy: alpha in (0, 1), min_improvement in [0, 1), "
                              "z_min >= 0 and n_starts >= 1 are required")
+        laws = tuple(dict.fromkeys(leak_laws))
+        if not laws or not set(laws) <= set(LEAK_LAWS) or isinstance(leak_laws, str):
+            raise ValueError(f"HoldDiscrepancy leak_laws = {leak_laws!r}: give one or both of "
+                             f"{list(LEAK_LAWS)}")
+        self.leak_laws = laws
         if sigma_pa is not None and not sigma_pa > 0:
             raise ValueError(f"HoldDiscrepancy sigma_pa = {sigma_pa!r} must be > 0 Pa")
         self.alpha, self.min_improvement, self.z_min = float(alpha), float(min_improvement), float(z_min)
@@ -279,16 +296,27 @@ class HoldDiscrepancy:
         base = run(())
         self.checks_: dict[str, dict] = {}
         singles = ("leakage", "heat_transfer")
+        n_cands = len(self.leak_laws) + 1
+        # the leak: each law fitted, the better fit of the held-in part stands for it
+        leaks = {law: run((LEAK_LAWS[law],)) for law in self.leak_laws}
+        self.leak_law_ = min(leaks, key=lambda k: leaks[k].ssr_fit)
+        self.leak_law_separation_ = None
+        if len(leaks) == 2:
+            a, b = sorted(leaks.values(), key=lambda m: m.ssr_fit)
+            stat, p = separation(a.ssr_fit, b.ssr_fit, a.n_eff)
+            self.leak_law_separation_ = {"law": self.leak_law_, "statistic": stat, "p_value": p,
+                                         "resolved": p < self.alpha}
+        fits = {"leakage": leaks[self.leak_law_], "heat_transfer": run(("heat_transfer",))}
         for n in singles:
-            self.checks_[n] = self._judge(run((n,)), base, len(singles))
+            self.checks_[n] = self._judge(fits[n], base, n_cands)
         passed = sorted((n for n in singles if self.checks_[n]["passed"]),
-                        key=lambda n: models[(n,)].ssr_fit + models[(n,)].ssr_holdout)
+                        key=lambda n: fits[n].ssr_fit + fits[n].ssr_holdout)
         self.named_effect_ = passed[0] if passed else "none"
         self.extension_: str | None = None
         self.ambiguous_: list[str] = []
         self.suggestion_: str | None = None
         if len(passed) == 2:
-            a, b = (models[(n,)] for n in passed)
+            a, b = (fits[n] for n in passed)
             stat, p = separation(a.ssr_fit + a.ssr_holdout, b.ssr_fit + b.ssr_holdout,
                                  a.n_eff + a.n_eff_holdout)
             self.separation_ = {"best": passed[0], "runner_up": passed[1], "statistic": stat,
@@ -303,12 +331,12 @@ class HoldDiscrepancy:
                     f"pressure for {max(5 * tau, 60.0):.0f} s: a leak keeps the pressure falling, air "
                     f"that has reached the wall temperature no longer does")
         if self.named_effect_ in singles:
-            first = models[(passed[0],)].values
-            both = run(("leakage", "heat_transfer"), first)
-            self.checks_["both"] = self._judge(both, models[(passed[0],)], 1)
+            first = fits[passed[0]].values
+            both = run((LEAK_LAWS[self.leak_law_], "heat_transfer"), first)
+            self.checks_["both"] = self._judge(both, fits[passed[0]], 1)
             if self.checks_["both"]["passed"]:
                 self.extension_ = "heat_transfer" if passed[0] == "leakage" else "leakage"
-        self.models_, self.sims_ = models, sims
+        self.models_, self.sims_, self.candidate_fits_ = models, sims, fits
         self.decision_ = self._sentence()
         return self
 
@@ -325,7 +353,7 @@ class HoldDiscrepancy:
                 return ("none: neither a leak nor settling air explains the decay better than a "
                         "constant pressure, held-out end included")
             n = max(short, key=lambda k: self.checks_[k]["improvement_fit"])
-            c, m = self.checks_[n], self.models_[(n,)]
+            c, m = self.checks_[n], self.candidate_fits_[n]
             failed = ", ".join(k for k, v in c["checks"].items() if not v)
             rms = math.sqrt(m.ssr_fit / m.n_fit)
             return (f"none, evidence short: {n} removes {c['improvement_fit']:.0%} of the fitted misfit "
@@ -333,14 +361,27 @@ class HoldDiscrepancy:
                     f"its residuals are {rms:.0f} sigma RMS and structured (N_eff = {m.n_eff:.0f} of "
                     f"{m.n_fit} samples): the form of the model does not fit the decay")
         c = self.checks_[self.named_effect_]
-        out = (f"{self.named_effect_}: passes every check and forecasts the held-out end "
-               f"({c['improvement_holdout']:.0%} of its misfit removed, p = {c['holdout_p']:.2g})")
+        out = (f"{self.named_effect_}{self._law_text()}: passes every check and forecasts the "
+               f"held-out end ({c['improvement_holdout']:.0%} of its misfit removed, "
+               f"p = {c['holdout_p']:.2g})")
         if self.extension_:
             out += f"; {self.extension_} on top passes as well"
         elif "both" in self.checks_:
             failed = [k for k, v in self.checks_["both"]["checks"].items() if not v]
             out += f"; the other effect on top does not pass ({', '.join(failed)})"
         return out
+
+    def _law_text(self) -> str:
+        """For a named leak: its law, and whether the other law fits clearly worse."""
+        if self.named_effect_ != "leakage":
+            return ""
+        s = self.leak_law_separation_
+        if s is None:
+            return f" ({self.leak_law_} law)"
+        other = next(k for k in self.leak_laws if k != self.leak_law_)
+        verdict = (f"the {other} law fits clearly worse" if s["resolved"] else
+                   f"not told from the {other} law")
+        return f" ({self.leak_law_} law; {verdict}, p = {s['p_value']:.2g})"
 
     def _judge(self, m: HoldFit, ref: HoldFit, n_cands: int) -> dict:
         """The checks of the workflow for model ``m`` against the nested model ``ref``."""
@@ -386,8 +427,10 @@ class HoldDiscrepancy:
 
     # -- results -------------------------------------------------------------------------
     def leak_per_litre(self, model: tuple[str, ...] = ("leakage",)) -> float:
-        """Fitted leak Cd*A [m²] per litre of chamber."""
-        a = self.models_[model].values["effects.leak_drive_area_m2"]
+        """Fitted leak per litre of chamber: Cd*A [m²] of the orifice law (``("leakage",)``),
+        or ``K`` [m³] of the laminar law (``("leakage_laminar",)``)."""
+        vals = self.models_[model].values
+        a = vals.get("effects.leak_drive_area_m2", vals.get("effects.leak_drive_laminar_m3"))
         return a / (self.model_volume_m3(self.rig(self.record_)) * 1e3)
 
     def report_dict(self) -> dict:
@@ -403,10 +446,16 @@ class HoldDiscrepancy:
                                    * self.sigma_, "n_eff": m.n_eff, "stderr": m.stderr, "z": m.z}
                           for m in self.models_.values()},
                "model_volume_m3": self.model_volume_m3(self.rig(rec))}
+        out["leak_law"] = self.leak_law_
+        out["leak_law_separation"] = self.leak_law_separation_
         if ("leakage",) in self.models_:
             out["leak_per_litre_m2"] = self.leak_per_litre()
             if rec.volume_m3:
                 out["leak_area_m2"] = out["leak_per_litre_m2"] * rec.volume_m3 * 1e3
+        if ("leakage_laminar",) in self.models_:
+            out["laminar_leak_per_litre_m3"] = self.leak_per_litre(("leakage_laminar",))
+            if rec.volume_m3:
+                out["laminar_leak_m3"] = out["laminar_leak_per_litre_m3"] * rec.volume_m3 * 1e3
         return out
 
 
@@ -461,8 +510,17 @@ def write_hold_report(h: HoldDiscrepancy, out: str | Path, plots: bool = True) -
         lines.append(f"| {c['model']} vs {c['against']} | {c['passed']} | {c['p_value']:.2g} | "
                      f"{c['holdout_p']:.2g} | {failed} |")
     if "leak_per_litre_m2" in rep:
-        lines += ["", f"Leak (the leakage model): Cd*A = {rep['leak_per_litre_m2']:.3g} m² per litre of chamber"
+        lines += ["", f"Leak, orifice law (`leakage`): Cd*A = {rep['leak_per_litre_m2']:.3g} m² per litre of chamber"
                   + (f", {rep['leak_area_m2']:.3g} m² for the stated volume" if "leak_area_m2" in rep else "")]
+    if "laminar_leak_per_litre_m3" in rep:
+        lines += ["", f"Leak, laminar law (`leakage_laminar`): K = pi d^4 / (128 l) = "
+                  f"{rep['laminar_leak_per_litre_m3']:.3g} m³ per litre of chamber"
+                  + (f", {rep['laminar_leak_m3']:.3g} m³ for the stated volume" if "laminar_leak_m3" in rep else "")]
+    if rep["leak_law_separation"]:
+        s = rep["leak_law_separation"]
+        lines += ["", f"The leak's law: {s['law']} fits the held-in part better "
+                  f"(N_eff ln(SSR ratio) = {s['statistic']:.3g}, p = {s['p_value']:.2g}; "
+                  f"{'resolved' if s['resolved'] else 'not resolved'} at alpha)"]
     with staged_files(out) as stage:
         (stage / "hold.json").write_text(json.dumps(_clean(rep), indent=2, allow_nan=False))
         (stage / "hold.md").write_text("\n".join(lines) + "\n")
@@ -472,8 +530,10 @@ def write_hold_report(h: HoldDiscrepancy, out: str | Path, plots: bool = True) -
             import matplotlib.pyplot as plt
             fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6), sharex=True, height_ratios=(2, 1))
             a.plot(rec.t, rec.p / 1e5, "k.", ms=2, label="measured")
+            law = {"leakage": "leak (orifice law)", "leakage_laminar": "leak (laminar law)",
+                   "heat_transfer": "warm air"}
             for key, sim in h.sims_.items():
-                label = "+".join(key) or "nominal"
+                label = " + ".join(law.get(k, k) for k in key) or "nominal"
                 a.plot(rec.t, sim / 1e5, lw=1.2, label=label)
                 b.plot(rec.t, (rec.p - sim) / 1e3, lw=0.8, label=label)
             for ax in (a, b):

@@ -64,7 +64,8 @@ P_DIP_DUR = 49     # supply-pressure dip: duration [s] (0 = no dip)
 P_DIP_DEPTH = 50   # supply-pressure dip: depth, fraction of the gauge supply pressure
 P_AE = 51          # exhaust-side piston face area [m²] (P_AP: the driving side's)
 P_FLOAD = 52       # constant force along the motion [N]: gravity, external force (< 0 opposing)
-NP = 53            # start of the cell volumes
+P_KLAM_LEAK_D = 53  # laminar leak drive -> atmosphere, K = pi d^4 / (128 l) [m³] (0 = none)
+NP = 54            # start of the cell volumes
 
 # --- continuous state, offsets from b = 2 n - 1 -------------------------------------------------
 Y_MD = 0    # driving-chamber air mass [kg]

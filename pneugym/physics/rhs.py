@@ -2,7 +2,8 @@
 (layouts in :mod:`pneugym.physics.layout`), and the implicit part of each IMEX stage.
 
 For line cells ``i``, faces ``j`` and the chambers (``q_v`` valve, ``q_p`` driving port, ``q_ex``
-exhaust path, ``q_ld``/``q_lp`` leaks: orifice flows [kg/s], thesis eqs. 4.1-4.3)::
+exhaust path, ``q_ld``/``q_lp`` leaks: orifice flows [kg/s], thesis eqs. 4.1-4.3; ``q_ld`` adds a
+laminar leak's, :func:`pneugym.physics.orifice.laminar_flow`)::
 
     dm_i/dt  = q_i - q_(i+1)                      line continuity (q_0 = q_v, q_n = q_p)
     dq_j/dt  = momentum of the FD line             :mod:`pneugym.physics.line` (eqs. 2.86-2.89)
@@ -28,11 +29,11 @@ from .layout import (
     MODE_MOVING, NP, P_AE, P_AP, P_AV, P_CDA_EXH, P_CDA_LEAK_D, P_CDA_LEAK_P, P_CDA_LINE, P_CDA_PORT,
     P_CDA_VALVE, P_CUSH_FD, P_CUSH_FE, P_CUSH_LEN, P_CUSH_RAMP, P_DX, P_FC, P_GAMMA, P_KV,
     P_LINE_A, P_LINE_D, P_LINE_MODEL, P_MASS, P_MU, P_NCELLS, P_OC, P_PA, P_R, P_SQRT_T,
-    P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH, Y_MD, Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD,
+    P_KLAM_LEAK_D, P_STRIB_F, P_STRIB_V, P_STROKE, P_T, P_TAU_TH, Y_MD, Y_ME, Y_MIN, Y_MOUT, Y_SD, Y_SE, Y_TD,
     Y_TE, Y_V, Y_X,
 )
 from .line import fd_continuity, fd_momentum, lumped_rhs
-from .orifice import flow_at, implicit_flow
+from .orifice import flow_at, implicit_flow, laminar_flow
 from .valve import supply_pressure, valve_opening
 
 
@@ -153,6 +154,8 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0, vdir):
     if se > 0.0:
         q_ex = flow_at(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, P, P_OC)
     q_ld = flow_at(pd, pa, P[P_CDA_LEAK_D], sTd, sT, P, P_OC)
+    if P[P_KLAM_LEAK_D] > 0.0:
+        q_ld += laminar_flow(pd, pa, P[P_KLAM_LEAK_D], P[P_MU], R * Td, RT)
     q_lp = flow_at(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, P, P_OC)
 
     # line (the valve and port flows are left out of the end cells' continuity)
