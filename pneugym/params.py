@@ -338,9 +338,10 @@ class EffectParams:
     - ``leak_drive_area_m2``: effective leak area (Cd included) driving chamber -> atmosphere.
     - ``leak_piston_area_m2``: effective leak area across the piston seal (drive <-> exhaust).
     - ``leak_drive_laminar_m3``: a laminar (capillary, porous) leak driving chamber ->
-      atmosphere, ``K = pi d^4 / (128 l)`` of a pore of diameter ``d`` and length ``l`` [m³]:
-      isothermal Hagen-Poiseuille flow ``q = K (p_d² - p_a²) / (2 mu R T)``, which keeps a long
-      tail near ambient where an orifice empties the chamber in a finite time.
+      atmosphere, ``K = pi d^4 / (128 l)`` summed over its pores (diameter ``d``, length ``l``)
+      [m³]: isothermal Hagen-Poiseuille flow ``q = K (p_d² - p_a²) / (2 mu R T)`` at the wall's
+      (ambient) temperature, valid while each pore's flow stays laminar; it keeps a long tail
+      near ambient where an orifice empties the chamber in a finite time.
     - ``heat_transfer_time_constant_s``: 0 = isothermal chambers (thesis); > 0 solves the energy
       equation of each chamber with wall heat transfer ``hA = m c_v / tau`` to the wall at ambient.
     - ``stribeck_force_n``, ``stribeck_velocity_m_s``: extra friction at low speed,

@@ -310,7 +310,7 @@ def test_earlier_cut_off_saves_more_but_takes_longer(conventional, end_stroke_cu
 # effects
 # ------------------------------------------------------------------------------------------
 NULL_EFFECTS = {
-    "leakage": {"leak_drive_area_m2": 0.0, "leak_piston_area_m2": 0.0},
+    "leakage": {"leak_drive_area_m2": 0.0, "leak_piston_area_m2": 0.0, "leak_drive_laminar_m3": 0.0},
     "heat_transfer": {"heat_transfer_time_constant_s": 0.0},
     "stribeck": {"stribeck_force_n": 0.0, "stribeck_velocity_m_s": 0.37},
     "sensor_lag": {"sensor_lag_s": 0.0},
@@ -563,6 +563,7 @@ def test_choose_dt_accepts_a_small_user_dt():
     # (the valve and port flows are implicit: a too fine grid is limited by its acoustics)
     ({"line": {"length_m": 0.01, "n_cells": 4096}}, "line CFL"),
     ({"effects": {"heat_transfer_time_constant_s": 1e-9}}, "heat transfer"),
+    ({"effects": {"leak_drive_laminar_m3": 1e-9}}, "laminar leak"),
     ({"solver": {"min_dt_s": 1.0}}, None),
 ])
 def test_choose_dt_refuses_an_unsteppable_configuration(changes, process):

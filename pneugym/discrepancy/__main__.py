@@ -75,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--hold", action="store_true",
                     help="the PATHs are hold tests of a closed chamber (CSV with columns t [s] and "
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
-                         "leakage, heat_transfer, both or none; one report folder per record in --out "
+                         "leakage (through an orifice or laminar pores, the law reported), heat_transfer, "
+                         "both or none; one report folder per record in --out "
                          "(of the options, only --alpha, --min-improvement, --seed and --no-plots apply)")
     ap.add_argument("--rig", default=None, metavar="FILE",
                     help="rig file of the rig the runs were measured on: what their JSON rig "

@@ -93,11 +93,11 @@ def flow_at(p_a, p_b, cda, sqrt_Ta, sqrt_Tb, c, o):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def laminar_flow(p_a, p_b, k, mu, RT_a, RT_b):
-    """Signed isothermal laminar (Hagen-Poiseuille) mass flow a -> b [kg/s] through a capillary
-    of conductance ``k = pi d^4 / (128 l)`` [m³]: ``k (p_a² - p_b²) / (2 mu R T)``, ``R T``
-    [J/kg] of the upstream side, ``mu`` [Pa s] the gas's viscosity."""
-    RT = RT_a if p_a >= p_b else RT_b
+def laminar_flow(p_a, p_b, k, mu, RT):
+    """Signed isothermal laminar (Hagen-Poiseuille) mass flow a -> b [kg/s] through capillaries
+    of conductance ``k`` (``pi d^4 / (128 l)`` summed over the pores) [m³]:
+    ``k (p_a² - p_b²) / (2 mu R T)``; the gas takes the wall's temperature (``R T`` [J/kg] at
+    ambient, ``mu`` [Pa s] the viscosity there). Valid while each pore's flow stays laminar."""
     return k * (p_a * p_a - p_b * p_b) / (2.0 * mu * RT)
 
 

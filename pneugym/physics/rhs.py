@@ -155,7 +155,7 @@ def stage_rhs(tau, s, se, y, P, mode, dy, p, hg, qv0, qp0, vdir):
         q_ex = flow_at(pe, pa, se * fe * P[P_CDA_EXH], sTe, sT, P, P_OC)
     q_ld = flow_at(pd, pa, P[P_CDA_LEAK_D], sTd, sT, P, P_OC)
     if P[P_KLAM_LEAK_D] > 0.0:
-        q_ld += laminar_flow(pd, pa, P[P_KLAM_LEAK_D], P[P_MU], R * Td, RT)
+        q_ld += laminar_flow(pd, pa, P[P_KLAM_LEAK_D], P[P_MU], RT)
     q_lp = flow_at(pd, pe, P[P_CDA_LEAK_P], sTd, sTe, P, P_OC)
 
     # line (the valve and port flows are left out of the end cells' continuity)
