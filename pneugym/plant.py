@@ -224,6 +224,8 @@ def stability_limits(params: RigParams) -> dict[str, float]:
     - ``implicit orifice chain of the lumped line``: no stability limit (valve, joints and port
       are solved together, :func:`pneugym.physics.chain.implicit_chain`), but a robustness bound
       ``h lambda <= CHAIN_H_LAMBDA`` for the chain's explicit first IMEX stage (see below);
+    - ``laminar leak drive``: the laminar leak's linearised rate, taken at
+      :data:`LAMINAR_P_FACTOR` times the supply pressure (it grows with the pressure);
     - ``line friction``, ``piston air spring``, ``piston viscous``, ``heat transfer``.
     """
     g, c, ln, v, e = params.gas, params.cylinder, params.line, params.valve, params.effects
