@@ -333,7 +333,7 @@ def test_the_command_prints_the_rig_as_a_valid_rig_file_and_the_difference(tmp_p
     assert re.search(r"\n  ambient_pressure_pa: 101325.0 +# Pa absolute\n", out)
     assert re.search(r"\n  delay_s: 0.0123 +# s; the thesis rig: null\n", out)
     n = len(rig_difference(RigParams(), ODD))
-    assert f"# differs from the thesis rig in {n} of 51 fields: supply_pressure_gauge_pa 250000 -> 150000" in out
+    assert f"# differs from the thesis rig in {n} of 52 fields: supply_pressure_gauge_pa 250000 -> 150000" in out
     assert as_rig(yaml.safe_load(out)) == ODD  # the output is itself a rig file
 
 
@@ -343,7 +343,7 @@ def test_the_command_compares_with_a_second_file_and_warns_of_a_rig_that_cannot_
     assert rigfile.main([str(a), str(a)]) == 0
     assert capsys.readouterr().out.endswith(f"# the same rig as {a}\n")
     assert rigfile.main([str(a), str(b)]) == 0
-    assert capsys.readouterr().out.endswith(f"# differs from {b} in 1 of 51 fields: line.length_m 3 -> 2.5\n")
+    assert capsys.readouterr().out.endswith(f"# differs from {b} in 1 of 52 fields: line.length_m 3 -> 2.5\n")
     stuck = thesis_rig(0.2, friction={"static_n": 5000.0}).save(tmp_path / "stuck.yaml")
     assert rigfile.main([str(stuck)]) == 0
     assert "# warning: the supply (20000 Pa gauge)" in capsys.readouterr().out
