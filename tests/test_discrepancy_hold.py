@@ -247,3 +247,10 @@ def test_hold_through_the_cli(tmp_path, capsys):
     assert "p_drive" in capsys.readouterr().err
     assert main(["--hold", str(path), "--out", str(tmp_path / "rep3"), "--starts", "0"]) == 2
     assert "n_starts >= 1" in capsys.readouterr().err  # --starts reaches the hold test
+    # --leak-laws reaches it too (one law: no separation of laws), and only it
+    assert main(["--hold", str(path), "--out", str(tmp_path / "rep4"), "--no-plots", "--starts",
+                 "1", "--leak-laws", "laminar"]) == 0
+    rep = json.loads((tmp_path / "rep4" / "chamber" / "hold.json").read_text())
+    assert rep["leak_law"] == "laminar" and set(rep["leak_law_checks"]) == {"laminar"}
+    assert main([str(path), "--out", str(tmp_path / "rep5"), "--leak-laws", "orifice"]) == 2
+    assert "--leak-laws is for hold tests" in capsys.readouterr().err

@@ -77,7 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "p_drive [Pa absolute], or zillen:NAME for a shipped public record): name "
                          "leakage (through an orifice or laminar pores, the law reported), heat_transfer, "
                          "both or none; one report folder per record in --out "
-                         "(of the options, only --alpha, --min-improvement, --seed and --no-plots apply)")
+                         "(of the options, only --alpha, --min-improvement, --seed, --starts, "
+                         "--leak-laws and --no-plots apply)")
+    ap.add_argument("--leak-laws", nargs="+", default=None, choices=("orifice", "laminar"),
+                    metavar="LAW",
+                    help="with --hold: the laws a leak is fitted with, orifice and/or laminar "
+                         "(default both; the better fit stands for leakage, the report says which)")
     ap.add_argument("--rig", default=None, metavar="FILE",
                     help="rig file of the rig the runs were measured on: what their JSON rig "
                          "sections leave out (default the thesis rig's values)")
@@ -107,6 +112,9 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         return _hold(a, out)
+    if a.leak_laws:
+        print("error: --leak-laws is for hold tests (--hold)", file=sys.stderr)
+        return 2
     names = [c.strip() for c in a.candidates.split(",") if c.strip()]
     holdout = None if a.holdout.lower() == "none" else a.holdout
     try:
@@ -162,7 +170,7 @@ def _hold(a: argparse.Namespace, out) -> int:
         recs = [read_hold(p) for p in a.paths]
         h = HoldDiscrepancy(alpha=a.alpha, seed=a.seed,
                             min_improvement=0.1 if a.min_improvement is None else a.min_improvement,
-                            **_starts(a))
+                            **_starts(a), **({"leak_laws": tuple(a.leak_laws)} if a.leak_laws else {}))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
