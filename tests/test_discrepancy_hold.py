@@ -55,10 +55,9 @@ def test_a_laminar_leak_drains_a_closed_chamber_as_hagen_poiseuille_says():
     assert tr["p_drive"] == pytest.approx(PA * (1 + r) / (1 - r), rel=1e-6)
     assert tr["p_drive"][-1] < 0.8 * p0  # it did drain
     # the vented air is the air the chamber and line lost
-    vented = pl.y[2 * pl.n_cells - 1 + L.Y_MOUT]
-    assert vented == pytest.approx(vol * (p0 - tr["p_drive"][-1])
-                                            / (rig.gas.gas_constant_j_per_kg_k
-                                               * rig.gas.ambient_temperature_k), rel=1e-3)
+    lost = vol * (p0 - tr["p_drive"][-1]) / (rig.gas.gas_constant_j_per_kg_k
+                                             * rig.gas.ambient_temperature_k)
+    assert pl.air_mass_out_kg == pytest.approx(lost, rel=1e-3)
 
 
 def test_a_laminar_leak_flows_at_the_wall_temperature_and_stays_stable_above_supply():
@@ -79,8 +78,8 @@ def test_a_laminar_leak_flows_at_the_wall_temperature_and_stays_stable_above_sup
     pl.run(0.04, [(0.0, 0)])
     rate = (pl.air_mass_out_kg - m0) / 0.02
     p_sq = 0.5 * (p1**2 + pl.p_drive_pa**2)  # (the pressure falls 0.3 % meanwhile)
+    # (at the chamber's temperature, 30 K above ambient, the rate would be 9 % lower)
     assert rate == pytest.approx(k * (p_sq - PA**2) / (2 * mu * R * T), rel=1e-3)
-    assert pl.p_drive_pa > 0  # (T_drive still 30 K above ambient: the flow did not use it)
     assert pl.mass_balance_error_kg < 1e-12
     big = thesis_rig(2.5, effects={"leak_drive_laminar_m3": 1e-10})
     p2 = 3 * big.supply_pressure_pa
